@@ -1,0 +1,55 @@
+"""Runtime code may import only torch, numpy, matplotlib and the standard library."""
+
+from __future__ import annotations
+
+import ast
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+RUNTIME_DIRS = ("problem1", "problem2", "report")
+ALLOWED_THIRD_PARTY = {"torch", "numpy", "matplotlib", "mpl_toolkits"}
+
+
+def runtime_files() -> list[Path]:
+    return sorted(p for d in RUNTIME_DIRS for p in (ROOT / d).rglob("*.py"))
+
+
+def imported_top_level_modules(path: Path) -> list[tuple[int, str]]:
+    """(line, top-level module) for every absolute import in ``path``."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, alias.name.split(".")[0]) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.append((node.lineno, node.module.split(".")[0]))
+    return found
+
+
+def test_there_is_runtime_code_to_check() -> None:
+    assert any(p.parent.name == "problem1" for p in runtime_files())
+
+
+def forbidden_imports(path: Path) -> list[str]:
+    """Imports of ``path`` that are neither allowed libraries nor sibling modules."""
+    local_modules = {p.stem for p in path.parent.glob("*.py")}
+    allowed = ALLOWED_THIRD_PARTY | local_modules | set(sys.stdlib_module_names)
+    return [f"line {line}: {mod}" for line, mod in imported_top_level_modules(path)
+            if mod not in allowed]
+
+
+@pytest.mark.parametrize("path", runtime_files(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_runtime_module_imports_only_allowed_libraries(path: Path) -> None:
+    assert forbidden_imports(path) == [], f"{path.name} imports forbidden modules"
+
+
+def test_checker_flags_forbidden_imports(tmp_path: Path) -> None:
+    (tmp_path / "helper.py").write_text("")
+    sample = tmp_path / "sample.py"
+    sample.write_text(
+        "import os\nimport numpy as np\nimport torch.nn\nimport helper\n"
+        "from scipy import stats\nimport gymnasium as gym\nfrom tqdm.auto import tqdm\n"
+    )
+    assert forbidden_imports(sample) == ["line 5: scipy", "line 6: gymnasium", "line 7: tqdm"]
