@@ -1,0 +1,268 @@
+"""A stochastic gridworld for dynamic programming (Problem 1).
+
+The agent moves on a square grid. An action succeeds with probability
+``prob_intended`` (0.8); otherwise the agent drifts to one of the two
+perpendicular directions with probability ``prob_drift`` (0.1) each. A move
+into the outer wall or an obstacle leaves the agent where it is. The reward
+depends only on the cell entered: +10 for the goal (the episode ends), -5 for a
+penalty cell (the episode goes on), -0.1 for any other cell. Episodes are cut
+after ``max_steps`` steps.
+
+Positions are ``(row, col)`` with row 0 at the top; state indices are
+``row * grid_size + col``. Actions are clockwise: 0 UP, 1 RIGHT, 2 DOWN, 3 LEFT,
+so the drift directions of ``a`` are ``(a - 1) % 4`` and ``(a + 1) % 4``.
+
+Other maps are given as rows of characters (see :data:`LAYOUT_SYMBOLS`)::
+
+    GridWorldEnv(layout=["S..", ".#.", "P.G"])
+"""
+
+from __future__ import annotations
+
+import numbers
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+Position = tuple[int, int]
+
+UP, RIGHT, DOWN, LEFT = 0, 1, 2, 3
+ACTION_NAMES = ("UP", "RIGHT", "DOWN", "LEFT")
+ACTION_ARROWS = ("↑", "→", "↓", "←")
+MOVES: tuple[Position, ...] = ((-1, 0), (0, 1), (1, 0), (0, -1))
+OUTCOME_NAMES = ("intended", "drift_left", "drift_right")
+# OUTCOME_DIRECTIONS[a] = directions of the three outcomes of action a (intended, left, right).
+OUTCOME_DIRECTIONS = np.array([[a, (a - 1) % 4, (a + 1) % 4] for a in range(4)])
+
+LAYOUT_SYMBOLS = {"S": "start", "G": "goal", "#": "obstacle", "P": "penalty", ".": "free"}
+
+COURSE_LAYOUT: tuple[str, ...] = (
+    "S....",
+    "..#..",
+    ".#...",
+    "P..P.",
+    "....G",
+)
+
+
+def _parse_layout(layout: Sequence[str]) -> dict[str, Any]:
+    """Validate a character layout and return its size and special cells."""
+    rows = list(layout)
+    if not rows:
+        raise ValueError("layout is empty: give at least one row of characters")
+    size = len(rows)
+    cells: dict[str, list[Position]] = {name: [] for name in LAYOUT_SYMBOLS.values()}
+    for r, row in enumerate(rows):
+        if not isinstance(row, str):
+            raise ValueError(f"layout row {r} is {type(row).__name__}, expected a string")
+        if len(row) != size:
+            raise ValueError(
+                f"layout must be square: row {r} has {len(row)} cells, expected {size}"
+            )
+        for c, symbol in enumerate(row):
+            if symbol not in LAYOUT_SYMBOLS:
+                raise ValueError(
+                    f"layout row {r}, column {c}: unknown symbol {symbol!r}; "
+                    f"use one of {''.join(LAYOUT_SYMBOLS)}"
+                )
+            cells[LAYOUT_SYMBOLS[symbol]].append((r, c))
+    for name in ("start", "goal"):
+        if len(cells[name]) != 1:
+            raise ValueError(f"layout needs exactly one {name} cell, found {len(cells[name])}")
+    return {"size": size, **cells}
+
+
+class GridWorldEnv:
+    """The 5x5 stochastic gridworld of the assignment (or any square layout).
+
+    Args:
+        seed: seed of the environment's own ``np.random.Generator`` (used by ``step``).
+        layout: rows of characters ``S`` start, ``G`` goal, ``#`` obstacle,
+            ``P`` penalty, ``.`` free; defaults to the course layout.
+        prob_drift: probability of slipping to each perpendicular side;
+            the intended move succeeds with ``1 - 2 * prob_drift``.
+        max_steps: episode length limit.
+    """
+
+    def __init__(
+        self,
+        seed: int | None = None,
+        layout: Sequence[str] = COURSE_LAYOUT,
+        prob_drift: float = 0.1,
+        max_steps: int = 50,
+    ) -> None:
+        if not 0.0 <= prob_drift <= 0.5:
+            raise ValueError(f"prob_drift must lie in [0, 0.5], got {prob_drift}")
+        if max_steps < 1:
+            raise ValueError(f"max_steps must be at least 1, got {max_steps}")
+        parsed = _parse_layout(layout)
+        self.layout = tuple(layout)
+        self.grid_size: int = parsed["size"]
+        self.n_states: int = self.grid_size**2
+        self.max_steps = int(max_steps)
+        self.action_space = 4
+        self.start_pos: Position = parsed["start"][0]
+        self.goal_pos: Position = parsed["goal"][0]
+        self.obstacles: list[Position] = parsed["obstacle"]
+        self.penalties: list[Position] = parsed["penalty"]
+        self.goal_reward = 10.0
+        self.penalty_reward = -5.0
+        self.step_cost = -0.1
+        self.prob_drift = float(prob_drift)
+        self.prob_intended = 1.0 - 2.0 * self.prob_drift
+        self.outcome_probs = np.array([self.prob_intended, self.prob_drift, self.prob_drift])
+        self._blocked = np.zeros((self.grid_size, self.grid_size), dtype=bool)
+        self._blocked[tuple(np.array(self.obstacles, dtype=int).reshape(-1, 2).T)] = True
+        self.move_table = self._build_move_table()
+        self.cell_rewards = self._build_cell_rewards()
+        self.rng = np.random.default_rng(seed)
+        self.reset()
+
+    # ------------------------------------------------------------------ episode
+    def reset(self) -> int:
+        """Put the agent on the start cell and return the start state index."""
+        self.current_pos = self.start_pos
+        self.steps = 0
+        self.done = False
+        return self._pos_to_state(self.current_pos)
+
+    def step(self, action: int) -> tuple[int, float, bool, dict[str, Any]]:
+        """Sample one transition: ``(next_state, reward, done, info)``.
+
+        ``info`` holds ``position``, ``steps``, ``outcome`` (``"intended"``,
+        ``"drift_left"`` or ``"drift_right"``) and ``truncated`` (the step limit,
+        not the goal, ended the episode).
+        """
+        action = self._check_action(action)
+        if self.done:
+            raise ValueError("step() called after the episode ended; call reset() first")
+        outcomes = self._get_next_positions(self.current_pos, action)
+        choice = int(self.rng.choice(len(outcomes), p=[p for _, p in outcomes]))
+        self.current_pos = outcomes[choice][0]
+        self.steps += 1
+        reward = self._calculate_reward(self.current_pos)
+        reached_goal = self.current_pos == self.goal_pos
+        truncated = not reached_goal and self.steps >= self.max_steps
+        self.done = reached_goal or truncated
+        info = {
+            "position": self.current_pos,
+            "steps": self.steps,
+            "outcome": OUTCOME_NAMES[choice],
+            "truncated": truncated,
+        }
+        return self._pos_to_state(self.current_pos), reward, self.done, info
+
+    # ------------------------------------------------------------------ model
+    def get_transition_prob(self, state: int, action: int) -> dict[int, float]:
+        """Next-state index -> probability, duplicates merged (sums to 1)."""
+        pos = self._state_to_pos(state)
+        probs: dict[int, float] = {}
+        for next_pos, p in self._get_next_positions(pos, self._check_action(action)):
+            if p == 0.0:
+                continue
+            next_state = self._pos_to_state(next_pos)
+            probs[next_state] = probs.get(next_state, 0.0) + p
+        return probs
+
+    def get_reward(self, state: int, action: int, next_state: int) -> float:
+        """Reward for entering ``next_state`` (it does not depend on ``state`` or ``action``)."""
+        self._check_state(state)
+        self._check_action(action)
+        return self._calculate_reward(self._state_to_pos(next_state))
+
+    def is_terminal(self, state: int) -> bool:
+        """True for the goal state only."""
+        return self._state_to_pos(state) == self.goal_pos
+
+    def _get_next_positions(self, pos: Position, action: int) -> list[tuple[Position, float]]:
+        """The three outcomes of ``action`` at ``pos``: ``[(next_pos, prob)]`` for the
+        intended move, the drift to its left and the drift to its right.
+
+        Two outcomes may land on the same cell (e.g. both bump into walls);
+        :meth:`get_transition_prob` merges them.
+        """
+        action = self._check_action(action)
+        next_states = self.move_table[self._pos_to_state(pos), OUTCOME_DIRECTIONS[action]]
+        return [
+            (self._state_to_pos(int(s)), float(p))
+            for s, p in zip(next_states, self.outcome_probs, strict=True)
+        ]
+
+    def _calculate_reward(self, pos: Position) -> float:
+        """Reward for entering ``pos``: goal, penalty cell or ordinary step cost."""
+        return float(self.cell_rewards[self._pos_to_state(pos)])
+
+    # ------------------------------------------------------------------ geometry
+    def _build_move_table(self) -> np.ndarray:
+        """``move_table[s, d]``: the state reached from ``s`` by a sure move in direction
+        ``d``; ``s`` itself when the outer wall or an obstacle is in the way. Shape (S, 4).
+
+        This table is the only place where the grid dynamics are written down:
+        ``step``, ``get_transition_prob`` and the tabular model all read it.
+        """
+        size = self.grid_size
+        rows, cols = np.divmod(np.arange(self.n_states), size)
+        table = np.empty((self.n_states, 4), dtype=np.int64)
+        for direction, (dr, dc) in enumerate(MOVES):
+            r, c = rows + dr, cols + dc
+            inside = (r >= 0) & (r < size) & (c >= 0) & (c < size)
+            r, c = np.clip(r, 0, size - 1), np.clip(c, 0, size - 1)
+            allowed = inside & ~self._blocked[r, c]
+            table[:, direction] = np.where(allowed, r * size + c, rows * size + cols)
+        return table
+
+    def _build_cell_rewards(self) -> np.ndarray:
+        """Reward for entering each state, shape (S,)."""
+        rewards = np.full(self.n_states, self.step_cost)
+        for r, c in self.penalties:
+            rewards[r * self.grid_size + c] = self.penalty_reward
+        rewards[self._pos_to_state(self.goal_pos)] = self.goal_reward
+        return rewards
+
+    def _is_valid_pos(self, pos: Position) -> bool:
+        """Inside the grid and not an obstacle."""
+        r, c = pos
+        inside = 0 <= r < self.grid_size and 0 <= c < self.grid_size
+        return bool(inside and not self._blocked[r, c])
+
+    def _pos_to_state(self, pos: Position) -> int:
+        r, c = pos
+        if not (0 <= r < self.grid_size and 0 <= c < self.grid_size):
+            raise ValueError(f"position {pos} is outside the {self.grid_size}x{self.grid_size} grid")
+        return int(r) * self.grid_size + int(c)
+
+    def _state_to_pos(self, state: int) -> Position:
+        state = self._check_state(state)
+        return divmod(state, self.grid_size)
+
+    def _check_action(self, action: Any) -> int:
+        if isinstance(action, bool) or not isinstance(action, numbers.Integral):
+            raise ValueError(f"action must be an integer in 0..3, got {action!r}")
+        if not 0 <= action < self.action_space:
+            raise ValueError(f"action must be in 0..3 (UP, RIGHT, DOWN, LEFT), got {action}")
+        return int(action)
+
+    def _check_state(self, state: Any) -> int:
+        if isinstance(state, bool) or not isinstance(state, numbers.Integral):
+            raise ValueError(f"state must be an integer index, got {state!r}")
+        if not 0 <= state < self.n_states:
+            raise ValueError(f"state must be in 0..{self.n_states - 1}, got {state}")
+        return int(state)
+
+    # ------------------------------------------------------------------ display
+    def render(self, value_function: np.ndarray | None = None) -> None:
+        """Print the grid (A agent, G goal, # obstacle, P penalty), or the values per cell."""
+        lines = []
+        for r in range(self.grid_size):
+            cells = []
+            for c in range(self.grid_size):
+                if value_function is not None and not self._blocked[r, c]:
+                    cells.append(f"{float(value_function[r * self.grid_size + c]):7.2f}")
+                    continue
+                symbol = self.layout[r][c].replace("S", ".")
+                if (r, c) == self.current_pos and value_function is None:
+                    symbol = "A"
+                cells.append(f"{symbol:>7}" if value_function is not None else symbol)
+            lines.append(" ".join(cells))
+        print("\n".join(lines))
