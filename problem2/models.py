@@ -1,0 +1,159 @@
+"""Q-networks with a message head, observation masks of the ablations, and TorchScript
+export of a trained network together with its mask.
+
+Both networks follow the assignment's formula with one hidden layer:
+    h = ReLU(W1 x + b1),   Q = W_q h + b_q  (or the dueling form),   m = sigmoid(w_m·h + b_m)
+"""
+
+from __future__ import annotations
+
+import copy
+import warnings
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import torch
+from _atomic import temporary_path_for
+from torch import nn
+
+OBSERVATION_DIM = 11
+MESSAGE_INDEX = 9  # the partner's last message
+DISTANCE_INDEX = 10  # normalised distance between the agents
+
+
+def _mask(*zeroed: int) -> np.ndarray:
+    mask = np.ones(OBSERVATION_DIM, dtype=np.float32)
+    mask[list(zeroed)] = 0.0
+    mask.flags.writeable = False
+    return mask
+
+
+# Multiplicative masks (11,) float32 of the three ablations, used wherever a network sees
+# an observation: acting, both TD passes, evaluation, and inside exported policies.
+OBSERVATION_MASKS: dict[str, np.ndarray] = {
+    "independent": _mask(MESSAGE_INDEX, DISTANCE_INDEX),  # patch only
+    "comm": _mask(DISTANCE_INDEX),  # patch + message
+    "full": _mask(),  # patch + message + distance
+}
+
+
+def observation_mask(mode: str) -> np.ndarray:
+    """The mask (11,) float32 of ablation ``mode``; ValueError for an unknown mode."""
+    if mode not in OBSERVATION_MASKS:
+        raise ValueError(f"unknown mode {mode!r}; expected one of {sorted(OBSERVATION_MASKS)}")
+    return OBSERVATION_MASKS[mode]
+
+
+class MessagingQNetwork(nn.Module):
+    """Shared part: the hidden ReLU layer, the sigmoid message head and ``forward``.
+    Subclasses add the Q head(s) and ``forward_with_logit``."""
+
+    def __init__(self, input_dim: int, hidden_dim: int) -> None:
+        super().__init__()
+        self.hidden = nn.Linear(input_dim, hidden_dim)
+        self.message_head = nn.Linear(hidden_dim, 1)
+
+    def forward_with_logit(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        raise NotImplementedError
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``x`` [B, input_dim] -> (Q-values [B, num_actions], message [B, 1] in [0, 1])."""
+        q_values, logit = self.forward_with_logit(x)
+        return q_values, torch.sigmoid(logit)
+
+
+class AgentDQN(MessagingQNetwork):
+    """Q-values over ``num_actions`` actions and a message in [0, 1] from one hidden layer."""
+
+    def __init__(self, input_dim: int = 11, hidden_dim: int = 64, num_actions: int = 5) -> None:
+        super().__init__(input_dim, hidden_dim)
+        self.q_head = nn.Linear(hidden_dim, num_actions)
+
+    def forward_with_logit(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``x`` [B, input_dim] -> (Q-values [B, num_actions], message logit [B, 1]).
+
+        DIAL training adds noise to the logit before the sigmoid."""
+        hidden = torch.relu(self.hidden(x))
+        return self.q_head(hidden), self.message_head(hidden)
+
+
+class DuelingDQN(MessagingQNetwork):
+    """Like :class:`AgentDQN`, but Q = V + (A − mean A) from separate value and advantage
+    heads on the shared hidden layer."""
+
+    def __init__(self, input_dim: int = 11, hidden_dim: int = 64, num_actions: int = 5) -> None:
+        super().__init__(input_dim, hidden_dim)
+        self.value_head = nn.Linear(hidden_dim, 1)
+        self.advantage_head = nn.Linear(hidden_dim, num_actions)
+
+    def forward_with_logit(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``x`` [B, input_dim] -> (Q-values [B, num_actions], message logit [B, 1])."""
+        hidden = torch.relu(self.hidden(x))
+        advantages = self.advantage_head(hidden)
+        q_values = self.value_head(hidden) + advantages - advantages.mean(dim=1, keepdim=True)
+        return q_values, self.message_head(hidden)
+
+
+@contextmanager
+def _torchscript_without_deprecation_warnings() -> Iterator[None]:
+    """torch 2.13 marks ``torch.jit`` deprecated, but the course requires TorchScript files
+    that load with ``torch.jit.load`` alone, so the warning is expected here."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", r"`torch\.jit\.\w+` is deprecated", DeprecationWarning)
+        yield
+
+
+class MaskedPolicy(nn.Module):
+    """A network behind a fixed multiplicative observation mask.
+
+    ``forward(obs)`` takes raw observations [B, input_dim] (or one [input_dim]) and returns
+    ``(q_values [B, A], comm_signal [B, 1])`` (without the batch dimension for one)."""
+
+    def __init__(self, network: nn.Module, mask: torch.Tensor) -> None:
+        super().__init__()
+        self.network = network
+        self.register_buffer("mask", mask)
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        if obs.dim() == 1:
+            q_values, comm = self.network(obs.unsqueeze(0) * self.mask)
+            return q_values.squeeze(0), comm.squeeze(0)
+        return self.network(obs * self.mask)
+
+
+def export_policy(
+    network: MessagingQNetwork,
+    mask: str | Sequence[float] | np.ndarray | torch.Tensor,
+    path: str | Path,
+) -> Path:
+    """Script ``network`` behind ``mask`` (an ablation name or input_dim numbers) and save
+    it atomically with ``torch.jit.save``. ``network`` itself is left untouched (a CPU copy
+    in eval mode is exported). Returns the path written."""
+    if isinstance(mask, str):
+        mask = observation_mask(mask)
+    mask_tensor = torch.from_numpy(np.array(mask, dtype=np.float32)).flatten()  # a copy
+    input_dim = network.hidden.in_features
+    if mask_tensor.numel() != input_dim:
+        raise ValueError(f"mask has {mask_tensor.numel()} elements; the network takes {input_dim}")
+    exported = copy.deepcopy(network).cpu().eval().requires_grad_(False)
+    with _torchscript_without_deprecation_warnings(), temporary_path_for(path) as temporary:
+        torch.jit.save(torch.jit.script(MaskedPolicy(exported, mask_tensor)), str(temporary))
+    return Path(path)
+
+
+def load_policy(path: str | Path) -> torch.jit.ScriptModule:
+    """Load a policy written by :func:`export_policy` (needs only ``torch.jit.load``).
+
+    Raises FileNotFoundError if ``path`` does not exist, ValueError if it is not a
+    TorchScript module."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no policy file at {path}")
+    try:
+        with _torchscript_without_deprecation_warnings():
+            policy = torch.jit.load(str(path), map_location="cpu")
+    except Exception as error:  # torch raises RuntimeError or zipfile/pickle errors
+        raise ValueError(f"{path} is not a valid TorchScript policy: {error}") from error
+    return policy.eval()

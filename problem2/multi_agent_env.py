@@ -1,0 +1,507 @@
+"""Two-agent cooperative grid world with partial observation and a learned message channel.
+
+Both agents must stand on the single target cell on the same step. Each agent sees an
+``obs_window × obs_window`` patch around itself, the message its partner sent on the
+previous step and the normalised distance between the two agents.
+
+``VectorMultiAgentEnv`` holds the only implementation of the dynamics, observations and
+rewards, stepping N copies of one map with NumPy arrays. ``MultiAgentEnv`` is the course
+interface: a thin N = 1 view of it.
+
+Observation of one agent (length ``obs_window² + 2``, 11 for the default window of 3):
+  0..8  the patch, row-major (0 free, 1 obstacle, 2 target, -1 off-grid; agents not drawn)
+  9     the partner's last message (0.0 at reset)
+  10    Euclidean distance between the agents / sqrt(H² + W²)
+Actions: 0 Up (row - 1), 1 Down (row + 1), 2 Left (col - 1), 3 Right (col + 1), 4 Stay.
+A move into a wall or an obstacle leaves the agent in place; agents may share a cell.
+Positions are (row, col), row 0 at the top.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+from _atomic import write_json_atomic
+
+FREE, OBSTACLE, TARGET, OFF_GRID = 0, 1, 2, -1
+ACTION_NAMES = ("Up", "Down", "Left", "Right", "Stay")
+NUM_ACTIONS = len(ACTION_NAMES)
+ACTION_DELTAS = np.array([[-1, 0], [1, 0], [0, -1], [0, 1], [0, 0]])  # (d_row, d_col)
+BOTH_ON_TARGET_REWARD = 10.0
+ARRIVAL_REWARD = 2.0
+STEP_REWARD = -0.1
+REWARD_MODES = ("arrival", "per_step")
+DEFAULT_MAP_SEED = 641  # the course default
+MAX_MAP_ATTEMPTS = 1000
+MAX_TABULATED_CELLS = 4096  # padded cells; the (P, P) float32 table is then ≤ 64 MiB
+
+
+def _check_grid_size(grid_size: tuple[int, int]) -> tuple[int, int]:
+    if len(tuple(grid_size)) != 2 or any(int(n) != n for n in grid_size):
+        raise ValueError(f"grid_size must be two integers (rows, cols), got {grid_size!r}")
+    rows, cols = (int(n) for n in grid_size)
+    if rows < 3 or cols < 3:
+        raise ValueError(f"grid must be at least 3×3, got {rows}×{cols}")
+    return rows, cols
+
+
+def target_distances(grid: np.ndarray) -> np.ndarray:
+    """Shortest-path length (H, W) int64 from every cell to the target by breadth-first
+    search over 4-neighbour moves; -1 for obstacles and cells that cannot reach it."""
+    rows, cols = grid.shape
+    distances = np.full((rows, cols), -1, dtype=np.int64)
+    start = tuple(int(i) for i in np.argwhere(grid == TARGET)[0])
+    distances[start] = 0
+    frontier = deque([start])
+    while frontier:
+        row, col = frontier.popleft()
+        for d_row, d_col in ACTION_DELTAS[:4]:
+            r, c = row + d_row, col + d_col
+            if 0 <= r < rows and 0 <= c < cols and grid[r, c] != OBSTACLE and distances[r, c] < 0:
+                distances[r, c] = distances[row, col] + 1
+                frontier.append((r, c))
+    return distances
+
+
+def check_grid(grid: np.ndarray | list) -> np.ndarray:
+    """Return ``grid`` as an int64 (H, W) array, or raise ValueError naming the problem:
+    not rectangular, smaller than 3×3, values outside {0, 1, 2}, not exactly one target,
+    fewer than two free cells, or a free cell that cannot reach the target."""
+    try:
+        array = np.array(grid)
+    except ValueError as error:
+        raise ValueError(f"map is not rectangular: {error}") from error
+    if array.ndim != 2:
+        raise ValueError(f"map must be a rectangular 2-D grid, got shape {array.shape}")
+    if array.dtype.kind not in "iu":
+        raise ValueError(f"map values must be integers, got dtype {array.dtype}")
+    _check_grid_size(array.shape)
+    unknown = sorted(set(np.unique(array).tolist()) - {FREE, OBSTACLE, TARGET})
+    if unknown:
+        raise ValueError(f"map values must be 0 free, 1 obstacle or 2 target; found {unknown}")
+    if (n_targets := int((array == TARGET).sum())) != 1:
+        raise ValueError(f"map must contain exactly one target (2), found {n_targets}")
+    if (array == FREE).sum() < 2:
+        raise ValueError("map needs at least two free cells to place the agents")
+    cut_off = np.argwhere((array == FREE) & (target_distances(array) < 0))
+    if len(cut_off):
+        raise ValueError(
+            f"map is not connected: free cells {cut_off[:5].tolist()} cannot reach the target"
+        )
+    return array.astype(np.int64)
+
+
+def generate_map(grid_size: tuple[int, int] = (10, 10), seed: int | None = None) -> np.ndarray:
+    """Draw a map (H, W) int64 with ``np.random.default_rng(seed)``: 3–6 obstacles off the
+    four corners, then one target on a free cell, redrawn until every free cell reaches the
+    target. Raises ValueError if no such map turns up in ``MAX_MAP_ATTEMPTS`` draws."""
+    rows, cols = _check_grid_size(grid_size)
+    rng = np.random.default_rng(seed)
+    corners = [0, cols - 1, (rows - 1) * cols, rows * cols - 1]
+    candidates = np.setdiff1d(np.arange(rows * cols), corners)
+    for _ in range(MAX_MAP_ATTEMPTS):
+        cells = np.zeros(rows * cols, dtype=np.int64)
+        n_obstacles = min(int(rng.integers(3, 7)), len(candidates))
+        cells[rng.choice(candidates, size=n_obstacles, replace=False)] = OBSTACLE
+        cells[rng.choice(np.flatnonzero(cells == FREE))] = TARGET
+        try:
+            return check_grid(cells.reshape(rows, cols))
+        except ValueError:
+            continue
+    raise ValueError(
+        f"no connected {rows}×{cols} map with 3–6 obstacles found in "
+        f"{MAX_MAP_ATTEMPTS} draws; use a larger grid"
+    )
+
+
+def save_map(path: str | Path, grid: np.ndarray) -> None:
+    """Write a validated map to ``path`` as JSON ``{"grid": [[...], ...]}`` (atomically)."""
+    write_json_atomic(path, {"grid": check_grid(grid).tolist()})
+
+
+def load_map(path: str | Path) -> np.ndarray:
+    """Read a map written by :func:`save_map`; ValueError (naming the file) if it is invalid."""
+    try:
+        content = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path}: not valid JSON ({error})") from error
+    if not isinstance(content, dict) or "grid" not in content:
+        raise ValueError(f"{path}: expected a JSON object with a 'grid' list of rows")
+    try:
+        return check_grid(content["grid"])
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from error
+
+
+def _positive_int(value: int, name: str) -> int:
+    if isinstance(value, bool) or int(value) != value or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+class VectorMultiAgentEnv:
+    """``n_envs`` copies of one map stepped together; all state lives in NumPy arrays.
+
+    Positions are kept as flat indices into the map padded by ``obs_window // 2`` cells of
+    -1 on each side, so a move is one addition, a wall check one lookup and an observation
+    patch one gather. ``seed`` draws the map (unless ``grid`` is given, which is validated
+    and used instead, its shape replacing ``grid_size``) and, through a separate stream
+    spawned with ``np.random.SeedSequence``, the agents' start cells.
+
+    Team reward of a step (both modes): if both agents stand on the target, exactly
+    ``+10`` and the episode terminates. Otherwise the sum of two per-agent parts, each
+    ``+2`` if that agent earns the bonus this step and ``-0.1`` if not:
+      * ``reward_mode="arrival"`` (default): an agent earns the bonus on the step it
+        first reaches the target in this episode; leaving and coming back pays nothing.
+      * ``reward_mode="per_step"`` (the literal reading): an agent earns the bonus on
+        every step it stands on the target.
+    So a step pays -0.2 (no bonus), 1.9 (one bonus: 2 - 0.1) or 10 (both on the target,
+    including both arriving on the same step) in either mode.
+    ``truncated`` is set when ``max_steps`` steps pass without termination.
+    """
+
+    def __init__(
+        self,
+        n_envs: int,
+        grid_size: tuple[int, int] = (10, 10),
+        obs_window: int = 3,
+        max_steps: int = 50,
+        seed: int | None = None,
+        reward_mode: str = "arrival",
+        grid: np.ndarray | None = None,
+        auto_reset: bool = True,
+    ) -> None:
+        self.n_envs = _positive_int(n_envs, "n_envs")
+        if (
+            isinstance(obs_window, bool)
+            or int(obs_window) != obs_window
+            or obs_window < 3
+            or obs_window % 2 == 0
+        ):
+            raise ValueError(f"obs_window must be an odd integer >= 3, got {obs_window!r}")
+        self.obs_window = int(obs_window)
+        self.max_steps = _positive_int(max_steps, "max_steps")
+        if reward_mode not in REWARD_MODES:
+            raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {reward_mode!r}")
+        self.reward_mode = reward_mode
+        self.auto_reset = bool(auto_reset)
+        self.grid = generate_map(grid_size, seed) if grid is None else check_grid(grid)
+        self.grid.flags.writeable = False
+        self.grid_size: tuple[int, int] = (int(self.grid.shape[0]), int(self.grid.shape[1]))
+        self.obs_dim = self.obs_window**2 + 2
+        self._rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
+        self._build_lookup_tables()
+        self._flat = np.zeros((self.n_envs, 2), dtype=np.int64)
+        self._messages = np.zeros((self.n_envs, 2), dtype=np.float32)
+        self._steps = np.zeros(self.n_envs, dtype=np.int64)
+        self._visited = np.zeros((self.n_envs, 2), dtype=bool)  # reached the target yet
+        self._finished = np.zeros(self.n_envs, dtype=bool)  # only set when not auto_reset
+        self.reset()
+
+    def _build_lookup_tables(self) -> None:
+        rows, cols = self.grid_size
+        pad = self._pad = self.obs_window // 2
+        self._padded_cols = padded_cols = cols + 2 * pad
+        padded = np.full((rows + 2 * pad, padded_cols), OFF_GRID, dtype=np.float32)
+        padded[pad : pad + rows, pad : pad + cols] = self.grid
+        self._cell_values = padded.ravel()
+        self._passable = (self._cell_values == FREE) | (self._cell_values == TARGET)
+        self._move_offsets = ACTION_DELTAS @ np.array([padded_cols, 1])
+        # Per-cell lookup tables, so an observation is two gathers. Entries of padding
+        # cells are never read (agents stay inside the grid).
+        all_cells = np.arange(padded.size)
+        patch_rows, patch_cols = np.mgrid[-pad : pad + 1, -pad : pad + 1]
+        patch_offsets = (patch_rows * padded_cols + patch_cols).ravel()
+        self._patches = np.take(self._cell_values, all_cells[:, None] + patch_offsets, mode="clip")
+        self._row_col = np.stack(np.divmod(all_cells, padded_cols), axis=-1) - pad  # (P, 2)
+        self._distances = None  # (P, P) normalised distances, if small enough to tabulate
+        if padded.size <= MAX_TABULATED_CELLS:
+            offsets = self._row_col[:, None, :] - self._row_col[None, :, :]
+            self._distances = (
+                np.hypot(offsets[..., 0], offsets[..., 1]) / np.hypot(rows, cols)
+            ).astype(np.float32)
+        self._start_cells = np.flatnonzero(self._cell_values == FREE)
+        self._target_flat = int(np.flatnonzero(self._cell_values == TARGET)[0])
+
+    def _to_flat(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        return (np.asarray(rows) + self._pad) * self._padded_cols + np.asarray(cols) + self._pad
+
+    # ----------------------------------------------------------------------------- state
+    @property
+    def positions(self) -> np.ndarray:
+        """Current agent positions (N, 2, 2) int64 as (row, col)."""
+        return self._rows_cols(self._flat)
+
+    def _rows_cols(self, flat: np.ndarray) -> np.ndarray:
+        return np.take(self._row_col, flat, axis=0)  # np.take: faster than fancy indexing
+
+    @property
+    def steps(self) -> np.ndarray:
+        """Steps taken in the current episode of each copy, (N,) int64."""
+        return self._steps.copy()
+
+    @property
+    def target_position(self) -> tuple[int, int]:
+        row, col = self._row_col[self._target_flat]
+        return int(row), int(col)
+
+    @property
+    def free_cells(self) -> np.ndarray:
+        """Cells (M, 2) of value 0 (free, not the target): where ``reset`` places agents."""
+        return self._rows_cols(self._start_cells)
+
+    def is_passable(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Bool array: inside the grid and not an obstacle (free or target)."""
+        rows, cols = np.asarray(rows), np.asarray(cols)
+        inside = (rows >= 0) & (rows < self.grid_size[0]) & (cols >= 0) & (cols < self.grid_size[1])
+        flat = self._to_flat(np.where(inside, rows, 0), np.where(inside, cols, 0))
+        return inside & self._passable[flat]
+
+    # ------------------------------------------------------------------------ dynamics
+    def _move(self, flat: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """New flat positions, same shape as ``flat``; blocked moves stay in place."""
+        proposed = flat + np.take(self._move_offsets, actions)
+        return np.where(np.take(self._passable, proposed), proposed, flat)
+
+    def _observe(self, flat: np.ndarray, messages: np.ndarray) -> np.ndarray:
+        """Observations (n, 2, obs_dim) float32 from flat positions and sent messages (n, 2)."""
+        patch_size = self.obs_window**2
+        obs = np.empty((flat.shape[0], 2, self.obs_dim), dtype=np.float32)
+        obs[:, :, :patch_size] = np.take(self._patches, flat, axis=0)
+        obs[:, :, patch_size] = messages[:, ::-1]  # each agent receives its partner's
+        if self._distances is not None:
+            distance = self._distances[flat[:, 0], flat[:, 1]]
+        else:
+            offset = self._row_col[flat[:, 0]] - self._row_col[flat[:, 1]]
+            distance = np.hypot(offset[:, 0], offset[:, 1]) / np.hypot(*self.grid_size)
+        obs[:, :, patch_size + 1] = distance[:, None]
+        return obs
+
+    def current_observations(self) -> np.ndarray:
+        """Observations (N, 2, obs_dim) float32 of the current state."""
+        return self._observe(self._flat, self._messages)
+
+    def _start_episodes(self, rows: np.ndarray, flat: np.ndarray | None = None) -> None:
+        """Begin new episodes in copies ``rows``: place agents (random distinct free
+        cells unless ``flat`` is given), clear messages, counters and arrival flags."""
+        if flat is None:
+            n_cells = len(self._start_cells)
+            # floor(uniform * n) is uniform on 0..n-1 and several times faster than
+            # Generator.integers for small batches.
+            cells = (self._rng.random((len(rows), 2)) * (n_cells, n_cells - 1)).astype(np.int64)
+            cells[:, 1] += cells[:, 1] >= cells[:, 0]  # B uniform over the cells A left
+            flat = self._start_cells[cells]
+        self._flat[rows] = flat
+        self._messages[rows] = 0.0
+        self._steps[rows] = 0
+        self._visited[rows] = flat == self._target_flat
+        self._finished[rows] = False
+
+    def reset(self, seed: int | None = None, positions: np.ndarray | None = None) -> np.ndarray:
+        """Start a new episode in every copy; return observations (N, 2, obs_dim) float32.
+
+        ``seed`` reseeds the placement RNG (fixed evaluation episodes). ``positions``
+        (N, 2, 2) places the agents by hand instead: any non-obstacle cells inside the
+        grid, the target included, but not both on the target. An agent starting on the
+        target earns no arrival bonus for it.
+        """
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+        flat = None
+        if positions is not None:
+            positions = np.asarray(positions)
+            if positions.shape != (self.n_envs, 2, 2) or positions.dtype.kind not in "iu":
+                raise ValueError(
+                    f"positions must be integers of shape ({self.n_envs}, 2, 2), "
+                    f"got {positions.dtype} {positions.shape}"
+                )
+            if not self.is_passable(positions[..., 0], positions[..., 1]).all():
+                raise ValueError("positions must be inside the grid and not on an obstacle")
+            flat = self._to_flat(positions[..., 0], positions[..., 1])
+            if (flat == self._target_flat).all(axis=1).any():
+                raise ValueError("both agents start on the target: the episode would be over")
+        self._start_episodes(np.arange(self.n_envs), flat)
+        return self.current_observations()
+
+    def _check_actions(self, actions: np.ndarray) -> np.ndarray:
+        actions = np.asarray(actions)
+        if actions.shape != (self.n_envs, 2):
+            raise ValueError(f"actions must have shape ({self.n_envs}, 2), got {actions.shape}")
+        if actions.dtype.kind not in "iu":
+            raise ValueError(f"actions must be integers 0..4, got dtype {actions.dtype}")
+        if actions.min() < 0 or actions.max() >= NUM_ACTIONS:
+            bad = np.unique(actions[(actions < 0) | (actions >= NUM_ACTIONS)])
+            raise ValueError(f"actions must be in 0..4 (Up, Down, Left, Right, Stay), got {bad}")
+        return actions
+
+    def _check_messages(self, messages: np.ndarray) -> np.ndarray:
+        """Messages outside [0, 1] are refused (ValueError), not clipped; so are NaN, inf."""
+        messages = np.asarray(messages)
+        if messages.shape != (self.n_envs, 2) or messages.dtype.kind not in "fiub":
+            raise ValueError(
+                f"messages must be numbers of shape ({self.n_envs}, 2), "
+                f"got {messages.dtype} {messages.shape}"
+            )
+        if not (messages.min() >= 0 and messages.max() <= 1):  # False for NaN too
+            if not np.isfinite(messages).all():
+                raise ValueError("messages must be finite numbers in [0, 1]; got NaN or inf")
+            bad = messages[(messages < 0) | (messages > 1)]
+            raise ValueError(f"messages must lie in [0, 1] (refused, not clipped); got {bad}")
+        return np.array(messages, dtype=np.float32)
+
+    def step(
+        self, actions: np.ndarray, messages: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """Advance every copy one step.
+
+        Args: ``actions`` (N, 2) ints in 0..4; ``messages`` (N, 2) numbers in [0, 1], the
+        message each agent sends now (its partner reads it in the returned observation).
+        Returns ``(obs (N, 2, obs_dim) float32, rewards (N,) float32, terminated (N,) bool,
+        truncated (N,) bool, info)``. With ``auto_reset`` the copies that finished start a
+        new episode and ``obs`` holds its first observation; ``info`` describes the state
+        before that reset: ``final_obs`` (N, 2, obs_dim), ``positions`` (N, 2, 2),
+        ``on_target`` (N, 2) bool, ``steps`` (N,) steps taken in the episode. Without
+        ``auto_reset``, stepping after a copy finished raises ValueError.
+        """
+        obs, rewards, terminated, truncated, info = self._step(actions, messages)
+        return obs, rewards.astype(np.float32), terminated, truncated, info
+
+    def _step(
+        self, actions: np.ndarray, messages: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """:meth:`step` with float64 rewards (so the single env returns exact decimals)."""
+        actions = self._check_actions(actions)
+        messages = self._check_messages(messages)
+        if self._finished.any():
+            raise ValueError(
+                f"episode over in copies {np.flatnonzero(self._finished)}; "
+                "call reset() before step()"
+            )
+        flat = self._flat = self._move(self._flat, actions)
+        self._messages = messages
+        self._steps += 1
+        on_target = flat == self._target_flat
+        both_on_target = on_target[:, 0] & on_target[:, 1]
+        pays_bonus = on_target & ~self._visited if self.reward_mode == "arrival" else on_target
+        parts = np.where(pays_bonus, ARRIVAL_REWARD, STEP_REWARD)
+        rewards = parts[:, 0] + parts[:, 1]
+        rewards[both_on_target] = BOTH_ON_TARGET_REWARD
+        self._visited |= on_target
+        terminated = both_on_target
+        truncated = (self._steps >= self.max_steps) & ~terminated
+        obs = self._observe(flat, messages)
+        info = {
+            "final_obs": obs.copy(),
+            "positions": self._rows_cols(flat),
+            "on_target": on_target,
+            "steps": self._steps.copy(),
+        }
+        finished = terminated | truncated
+        if not self.auto_reset:
+            self._finished = finished
+        elif finished.any():
+            rows = np.flatnonzero(finished)
+            self._start_episodes(rows)
+            obs[rows] = self._observe(self._flat[rows], self._messages[rows])
+        return obs, rewards, terminated, truncated, info
+
+    def render(self, env_index: int = 0) -> None:
+        """Print copy ``env_index``: A, B (* when sharing a cell), T target, X obstacle."""
+        cells = np.array([".", "X", "T"])[self.grid]
+        (row_a, col_a), (row_b, col_b) = self.positions[env_index]
+        cells[row_a, col_a] = "A"
+        cells[row_b, col_b] = "*" if (row_a, col_a) == (row_b, col_b) else "B"
+        print("\n".join(" ".join(row) for row in cells))
+        message_a, message_b = self._messages[env_index]
+        print(
+            f"step {self._steps[env_index]}/{self.max_steps}  message A→B {message_a:.2f}  "
+            f"B→A {message_b:.2f}"
+        )
+
+
+def _single_number(value: object, name: str) -> int | float:
+    array = np.asarray(value)
+    if array.size != 1:
+        raise ValueError(f"{name} must be a single number, got shape {array.shape}")
+    return array.reshape(()).item()
+
+
+class MultiAgentEnv:
+    """One environment with the course interface; an N = 1 view of VectorMultiAgentEnv
+    (see there for the reward). ``step`` after the episode ended raises ValueError."""
+
+    def __init__(
+        self,
+        grid_size: tuple[int, int] = (10, 10),
+        obs_window: int = 3,
+        max_steps: int = 50,
+        seed: int | None = None,
+        reward_mode: str = "arrival",
+        grid: np.ndarray | None = None,
+    ) -> None:
+        self._vector = VectorMultiAgentEnv(
+            1, grid_size, obs_window, max_steps, seed, reward_mode, grid, auto_reset=False
+        )
+        self.grid_size = self._vector.grid_size
+        self.obs_window = self._vector.obs_window
+        self.max_steps = self._vector.max_steps
+        self.reward_mode = reward_mode
+        self.grid = self._vector.grid
+
+    @property
+    def agent_positions(self) -> list[tuple[int, int]]:
+        """[(row_A, col_A), (row_B, col_B)]."""
+        return [(int(r), int(c)) for r, c in self._vector.positions[0]]
+
+    @property
+    def target_position(self) -> tuple[int, int]:
+        return self._vector.target_position
+
+    def reset(
+        self, seed: int | None = None, positions: list | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Place both agents anew; return (obs_A, obs_B), each (obs_dim,) float32.
+        ``seed`` and ``positions`` ((row, col) of A and of B) as in the vector env."""
+        obs = self._vector.reset(seed, None if positions is None else np.asarray(positions)[None])
+        return obs[0, 0], obs[0, 1]
+
+    def step(
+        self, action_A: int, action_B: int, comm_A: float, comm_B: float
+    ) -> tuple[tuple[np.ndarray, np.ndarray], float, bool]:
+        """One joint step: ((obs_A, obs_B), team reward, done). ``done`` is True when both
+        agents stand on the target or ``max_steps`` steps have passed."""
+        actions = [_single_number(action_A, "action_A"), _single_number(action_B, "action_B")]
+        if not all(isinstance(a, int) for a in actions):
+            raise ValueError(f"actions must be integers 0..4, got {actions}")
+        messages = [[_single_number(comm_A, "comm_A"), _single_number(comm_B, "comm_B")]]
+        obs, rewards, terminated, truncated, _ = self._vector._step(np.array([actions]), messages)
+        return (obs[0, 0], obs[0, 1]), float(rewards[0]), bool(terminated[0] or truncated[0])
+
+    def _get_observation(self, agent_idx: int) -> np.ndarray:
+        """Current observation (obs_dim,) float32 of agent 0 (A) or 1 (B)."""
+        if agent_idx not in (0, 1):
+            raise ValueError(f"agent_idx must be 0 (A) or 1 (B), got {agent_idx!r}")
+        return self._vector.current_observations()[0, agent_idx]
+
+    def _is_valid_position(self, pos: tuple[int, int]) -> bool:
+        """True if ``pos`` is inside the grid and not an obstacle."""
+        return bool(self._vector.is_passable(pos[0], pos[1]))
+
+    def _apply_action(self, pos: tuple[int, int], action: int) -> tuple[int, int]:
+        """Cell reached from ``pos`` by ``action`` (``pos`` itself if the move is blocked)."""
+        if not self._is_valid_position(pos):
+            raise ValueError(f"pos {pos} is off the grid or on an obstacle")
+        actions = self._vector._check_actions(np.full((1, 2), action))[:1, :1]
+        flat = self._vector._to_flat(np.array([[pos[0]]]), np.array([[pos[1]]]))
+        row, col = self._vector._rows_cols(self._vector._move(flat, actions))[0, 0]
+        return int(row), int(col)
+
+    def _find_free_cells(self) -> list[tuple[int, int]]:
+        """Free cells (value 0, not the target) as (row, col): where agents may start."""
+        return [(int(r), int(c)) for r, c in self._vector.free_cells]
+
+    def render(self) -> None:
+        self._vector.render(0)
