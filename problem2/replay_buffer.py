@@ -1,0 +1,245 @@
+"""Experience replay for the two agents' joint transitions.
+
+``ReplayBuffer`` samples uniformly; ``PrioritizedReplayBuffer`` samples in proportion to
+priority^alpha from a sum-tree. Both store each field in one preallocated NumPy array,
+created at the first push with the per-transition shape it brings (so 10- and 11-dim
+observations both work), written as a ring. Besides the ten required fields a buffer may
+store further named arrays (e.g. the partner's previous observation, for DIAL): whatever
+extra keywords the first push brings, every later push must bring too.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+TRANSITION_FIELDS = (
+    "state_A", "state_B", "action_A", "action_B", "comm_A", "comm_B",
+    "reward", "next_state_A", "next_state_B", "done",
+)  # fmt: skip
+_INTEGER_FIELDS = ("action_A", "action_B")  # stored as int64; the other required: float32
+
+
+def _positive_int(value: int, name: str) -> int:
+    if isinstance(value, bool) or int(value) != value or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+class ReplayBuffer:
+    """Uniform replay over the last ``capacity`` transitions; ``seed`` seeds sampling."""
+
+    def __init__(self, capacity: int = 10000, seed: int | None = None) -> None:
+        self.capacity = _positive_int(capacity, "capacity")
+        self._rng = np.random.default_rng(seed)
+        self._storage: dict[str, np.ndarray] = {}
+        self._size = 0
+        self._next_slot = 0
+
+    def __len__(self) -> int:
+        return self._size
+
+    @property
+    def field_names(self) -> tuple[str, ...]:
+        """The ten required fields, then the extras (empty before the first push)."""
+        return tuple(self._storage)
+
+    # fmt: off
+    def push(self, state_A, state_B, action_A, action_B, comm_A, comm_B, reward,
+             next_state_A, next_state_B, done, **extras) -> None:
+        """Store one transition: states (obs_dim,), the rest scalars; ``extras`` likewise
+        one transition's worth each."""
+        required = (state_A, state_B, action_A, action_B, comm_A, comm_B, reward,
+                    next_state_A, next_state_B, done)
+        fields = dict(zip(TRANSITION_FIELDS, required, strict=True)) | extras
+        self.push_batch(**{name: np.asarray(value)[None] for name, value in fields.items()})
+    # fmt: on
+
+    def push_batch(self, **arrays: np.ndarray) -> np.ndarray:
+        """Store B transitions: the ten required fields and any extras as keywords, each
+        with leading dimension B (states (B, obs_dim), actions (B,), ...). If B exceeds the
+        capacity only the last ``capacity`` are kept. Returns the slots written (B',) int64."""
+        missing = [name for name in TRANSITION_FIELDS if name not in arrays]
+        if missing:
+            raise ValueError(f"push_batch is missing required fields {missing}")
+        arrays = {name: np.asarray(value) for name, value in arrays.items()}
+        lengths = {value.shape[0] if value.ndim else 0 for value in arrays.values()}
+        if len(lengths) != 1 or 0 in lengths:
+            raise ValueError(
+                "every field needs the same non-zero leading (batch) dimension; "
+                f"got shapes { {name: a.shape for name, a in arrays.items()} }"
+            )
+        if not self._storage:
+            self._allocate(arrays)
+        self._check_fields(arrays)
+        batch_size = min(lengths.pop(), self.capacity)
+        slots = (self._next_slot + np.arange(batch_size)) % self.capacity
+        for name, value in arrays.items():
+            self._storage[name][slots] = value[-batch_size:]
+        self._next_slot = int(slots[-1] + 1) % self.capacity
+        self._size = min(self._size + batch_size, self.capacity)
+        return slots
+
+    def _allocate(self, arrays: dict[str, np.ndarray]) -> None:
+        extras = sorted(set(arrays) - set(TRANSITION_FIELDS))
+        for name in (*TRANSITION_FIELDS, *extras):
+            if name in _INTEGER_FIELDS:
+                dtype = np.int64
+            elif name in TRANSITION_FIELDS:
+                dtype = np.float32
+            else:
+                dtype = arrays[name].dtype
+            self._storage[name] = np.zeros((self.capacity, *arrays[name].shape[1:]), dtype)
+
+    def _check_fields(self, arrays: dict[str, np.ndarray]) -> None:
+        if set(arrays) != set(self._storage):
+            raise ValueError(
+                f"fields {sorted(arrays)} differ from those of the first push "
+                f"{sorted(self._storage)}"
+            )
+        for name, value in arrays.items():
+            if value.shape[1:] != self._storage[name].shape[1:]:
+                raise ValueError(
+                    f"{name} has per-transition shape {value.shape[1:]}, the "
+                    f"buffer holds {self._storage[name].shape[1:]}"
+                )
+
+    def _check_batch_size(self, batch_size: int) -> int:
+        batch_size = _positive_int(batch_size, "batch_size")
+        if batch_size > self._size:
+            raise ValueError(
+                f"cannot sample {batch_size} transitions: the buffer holds {self._size}"
+            )
+        return batch_size
+
+    def _draw_indices(self, batch_size: int) -> np.ndarray:
+        return self._rng.integers(self._size, size=batch_size)
+
+    def get(self, indices: np.ndarray) -> dict[str, np.ndarray]:
+        """Every field (required and extras) at slots ``indices`` (B,), as copies."""
+        return {name: values[indices] for name, values in self._storage.items()}
+
+    def sample_batch(self, batch_size: int) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+        """(all fields as in :meth:`get`, importance weights (B,) float32 — all 1 here —,
+        slots (B,)): one call that serves both buffer types."""
+        indices = self._draw_indices(self._check_batch_size(batch_size))
+        return self.get(indices), np.ones(len(indices), dtype=np.float32), indices
+
+    def sample(self, batch_size: int) -> tuple[np.ndarray, ...]:
+        """Uniform sample with replacement: the ten required arrays in interface order,
+        states (B, obs_dim) float32, actions (B,) int64, the rest (B,) float32."""
+        batch, _, _ = self.sample_batch(batch_size)
+        return tuple(batch[name] for name in TRANSITION_FIELDS)
+
+
+class SumTree:
+    """Binary tree in one array: node 1 is the root, node i has children 2i and 2i + 1,
+    and the ``capacity`` leaves start at ``leaf_offset`` (a power of two). Each inner node
+    holds the sum of its children, so update and prefix-sum search take O(log n)."""
+
+    def __init__(self, capacity: int) -> None:
+        self.depth = max(0, (capacity - 1).bit_length())
+        self.leaf_offset = 1 << self.depth
+        self.nodes = np.zeros(2 * self.leaf_offset, dtype=np.float64)
+
+    @property
+    def total(self) -> float:
+        return float(self.nodes[1])
+
+    def values(self, leaves: np.ndarray) -> np.ndarray:
+        return self.nodes[np.asarray(leaves) + self.leaf_offset]
+
+    def update(self, leaves: np.ndarray, values: np.ndarray | float) -> None:
+        """Set leaves (B,) to ``values`` and recompute their ancestors, level by level."""
+        nodes = np.asarray(leaves) + self.leaf_offset
+        self.nodes[nodes] = values
+        for _ in range(self.depth):
+            nodes = np.unique(nodes // 2)
+            self.nodes[nodes] = self.nodes[2 * nodes] + self.nodes[2 * nodes + 1]
+
+    def find(self, prefix_sums: np.ndarray) -> np.ndarray:
+        """Leaf (B,) whose cumulative range contains each prefix sum in [0, total),
+        descending all B searches together one level at a time."""
+        remaining = np.array(prefix_sums, dtype=np.float64)
+        nodes = np.ones(len(remaining), dtype=np.int64)
+        for _ in range(self.depth):
+            left = 2 * nodes
+            left_sums = self.nodes[left]
+            go_right = remaining >= left_sums
+            remaining -= np.where(go_right, left_sums, 0.0)
+            nodes = left + go_right
+        return nodes - self.leaf_offset
+
+
+class PrioritizedReplayBuffer(ReplayBuffer):
+    """Proportional prioritised replay (Schaul et al., 2016).
+
+    Slot i is drawn with probability P(i) = p_i^alpha / sum_k p_k^alpha (stratified: one
+    draw from each of B equal slices of the total). New transitions get the largest
+    priority seen so far. Importance weights (N · P(i))^(-beta) are divided by their batch
+    maximum; beta grows linearly from ``beta_start`` to 1 over ``beta_steps`` samples.
+    """
+
+    def __init__(
+        self,
+        capacity: int = 10000,
+        alpha: float = 0.6,
+        beta_start: float = 0.4,
+        beta_steps: int = 100000,
+        seed: int | None = None,
+    ) -> None:
+        super().__init__(capacity, seed)
+        if not alpha >= 0:
+            raise ValueError(f"alpha must be >= 0, got {alpha!r}")
+        if not 0 <= beta_start <= 1:
+            raise ValueError(f"beta_start must be in [0, 1], got {beta_start!r}")
+        self.alpha = float(alpha)
+        self.beta_start = float(beta_start)
+        self.beta_steps = _positive_int(beta_steps, "beta_steps")
+        self._tree = SumTree(self.capacity)
+        self._max_priority = 1.0
+        self._samples_drawn = 0
+
+    @property
+    def beta(self) -> float:
+        """The importance-sampling exponent the next sample will use."""
+        progress = min(1.0, self._samples_drawn / self.beta_steps)
+        return self.beta_start + (1.0 - self.beta_start) * progress
+
+    def push_batch(self, **arrays: np.ndarray) -> np.ndarray:
+        slots = super().push_batch(**arrays)
+        self._tree.update(slots, self._max_priority**self.alpha)
+        return slots
+
+    def _draw_indices(self, batch_size: int) -> np.ndarray:
+        slice_width = self._tree.total / batch_size
+        prefix_sums = (np.arange(batch_size) + self._rng.random(batch_size)) * slice_width
+        # Rounding can carry a search just past the last stored slot (priority 0).
+        return np.minimum(self._tree.find(prefix_sums), self._size - 1)
+
+    def sample_batch(self, batch_size: int) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+        batch, _, indices = super().sample_batch(batch_size)
+        probabilities = self._tree.values(indices) / self._tree.total
+        weights = (self._size * probabilities) ** -self.beta
+        self._samples_drawn += 1
+        return batch, (weights / weights.max()).astype(np.float32), indices
+
+    def sample(self, batch_size: int) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray]:
+        """(the ten required arrays as in ReplayBuffer.sample, weights (B,) float32,
+        slots (B,) int64 to pass back to :meth:`update_priorities`)."""
+        batch, weights, indices = self.sample_batch(batch_size)
+        return tuple(batch[name] for name in TRANSITION_FIELDS), weights, indices
+
+    def update_priorities(self, indices: np.ndarray, priorities: np.ndarray) -> None:
+        """Set the priorities (B,) of slots ``indices`` (B,), e.g. |TD error| + 1e-6.
+        Priorities must be positive and finite."""
+        indices = np.asarray(indices, dtype=np.int64).reshape(-1)
+        priorities = np.asarray(priorities, dtype=np.float64).reshape(-1)
+        if indices.shape != priorities.shape:
+            raise ValueError(f"{len(indices)} indices but {len(priorities)} priorities")
+        if len(indices) and (indices.min() < 0 or indices.max() >= self._size):
+            raise ValueError(f"indices must be stored slots in 0..{self._size - 1}")
+        if not (np.isfinite(priorities).all() and (priorities > 0).all()):
+            raise ValueError("priorities must be positive and finite")
+        self._tree.update(indices, priorities**self.alpha)
+        if len(priorities):
+            self._max_priority = max(self._max_priority, float(priorities.max()))
