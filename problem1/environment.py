@@ -37,13 +37,27 @@ OUTCOME_DIRECTIONS = np.array([[a, (a - 1) % 4, (a + 1) % 4] for a in range(4)])
 
 LAYOUT_SYMBOLS = {"S": "start", "G": "goal", "#": "obstacle", "P": "penalty", ".": "free"}
 
-COURSE_LAYOUT: tuple[str, ...] = (
-    "S....",
-    "..#..",
-    ".#...",
-    "P..P.",
-    "....G",
-)
+# The course map, listed in the course's own order (the graders compare these lists).
+COURSE_MAP: dict[str, Any] = {
+    "size": 5,
+    "start": [(0, 0)],
+    "goal": [(4, 4)],
+    "obstacle": [(1, 2), (2, 1)],
+    "penalty": [(3, 3), (3, 0)],
+}
+
+
+def layout_from_cells(cells: dict[str, Any]) -> tuple[str, ...]:
+    """Rows of characters for a map given as lists of cells per kind (see ``COURSE_MAP``)."""
+    symbol_of = {name: symbol for symbol, name in LAYOUT_SYMBOLS.items()}
+    rows = [["."] * cells["size"] for _ in range(cells["size"])]
+    for name in ("start", "goal", "obstacle", "penalty"):
+        for r, c in cells[name]:
+            rows[r][c] = symbol_of[name]
+    return tuple("".join(row) for row in rows)
+
+
+COURSE_LAYOUT = layout_from_cells(COURSE_MAP)  # ("S....", "..#..", ".#...", "P..P.", "....G")
 
 
 def _parse_layout(layout: Sequence[str]) -> dict[str, Any]:
@@ -88,7 +102,7 @@ class GridWorldEnv:
     def __init__(
         self,
         seed: int | None = None,
-        layout: Sequence[str] = COURSE_LAYOUT,
+        layout: Sequence[str] | None = None,
         prob_drift: float = 0.1,
         max_steps: int = 50,
     ) -> None:
@@ -96,16 +110,16 @@ class GridWorldEnv:
             raise ValueError(f"prob_drift must lie in [0, 0.5], got {prob_drift}")
         if max_steps < 1:
             raise ValueError(f"max_steps must be at least 1, got {max_steps}")
-        parsed = _parse_layout(layout)
-        self.layout = tuple(layout)
+        parsed = COURSE_MAP if layout is None else _parse_layout(layout)
+        self.layout = layout_from_cells(parsed)
         self.grid_size: int = parsed["size"]
         self.n_states: int = self.grid_size**2
         self.max_steps = int(max_steps)
         self.action_space = 4
         self.start_pos: Position = parsed["start"][0]
         self.goal_pos: Position = parsed["goal"][0]
-        self.obstacles: list[Position] = parsed["obstacle"]
-        self.penalties: list[Position] = parsed["penalty"]
+        self.obstacles: list[Position] = list(parsed["obstacle"])
+        self.penalties: list[Position] = list(parsed["penalty"])
         self.goal_reward = 10.0
         self.penalty_reward = -5.0
         self.step_cost = -0.1
@@ -229,7 +243,9 @@ class GridWorldEnv:
     def _pos_to_state(self, pos: Position) -> int:
         r, c = pos
         if not (0 <= r < self.grid_size and 0 <= c < self.grid_size):
-            raise ValueError(f"position {pos} is outside the {self.grid_size}x{self.grid_size} grid")
+            raise ValueError(
+                f"position {pos} is outside the {self.grid_size}x{self.grid_size} grid"
+            )
         return int(r) * self.grid_size + int(c)
 
     def _state_to_pos(self, state: int) -> Position:

@@ -46,8 +46,9 @@ class TabularModel:
         absorbing = terminal.copy()
         for pos in env.obstacles:
             absorbing[env._pos_to_state(pos)] = True
-        return cls(next_states, probs, rewards, terminal, absorbing,
-                   env._pos_to_state(env.start_pos))
+        return cls(
+            next_states, probs, rewards, terminal, absorbing, env._pos_to_state(env.start_pos)
+        )
 
     @property
     def n_states(self) -> int:
@@ -82,23 +83,23 @@ class TabularModel:
         """``(S,)`` int64 argmax actions (the first best action on ties; 0 in absorbing states)."""
         return np.argmax(q_values, axis=1).astype(np.int64)
 
-    def policy_matrices(self, policy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Dense ``P_pi`` (S, S) and expected reward ``R_pi`` (S,) of a deterministic policy.
+    def evaluate_policy(
+        self, policy: np.ndarray, gamma: float, outcome_rewards: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Exact ``V_pi`` (S,) of a deterministic policy by solving ``(I - gamma P_pi) V = R_pi``.
 
-        Absorbing states get an all-zero row, so ``(I - gamma P_pi) V = R_pi`` gives them 0.
-        Meant for verification on small grids only: it is ``O(S^2)`` memory.
+        ``outcome_rewards`` (S, A, 3) replaces the model's rewards, e.g. ones to get the
+        expected number of steps to the goal (with ``gamma = 1`` for a policy that
+        reaches it). Absorbing states get an all-zero row of ``P_pi``, hence value 0.
+        Dense ``S x S`` algebra: meant for verification on small grids only.
         """
+        rewards = self.rewards if outcome_rewards is None else outcome_rewards
         rows = np.arange(self.n_states)
         outcomes = self.next_states[rows, policy]  # (S, 3)
         probs = np.where(self.absorbing[:, None], 0.0, self.probs[rows, policy])
         transition = np.zeros((self.n_states, self.n_states))
         np.add.at(transition, (np.repeat(rows, outcomes.shape[1]), outcomes.ravel()), probs.ravel())
-        expected_reward = np.sum(probs * self.rewards[rows, policy], axis=1)
-        return transition, expected_reward
-
-    def evaluate_policy(self, policy: np.ndarray, gamma: float) -> np.ndarray:
-        """Exact ``V_pi`` (S,) by solving ``(I - gamma P_pi) V = R_pi``."""
-        transition, expected_reward = self.policy_matrices(policy)
+        expected_reward = np.sum(probs * rewards[rows, policy], axis=1)
         return np.linalg.solve(np.eye(self.n_states) - gamma * transition, expected_reward)
 
 
@@ -131,11 +132,11 @@ class DynamicProgrammingSolver:
             raise ValueError(f"max_iterations must be at least 1, got {max_iterations}")
         self.history = []
         current = initial
-        for iteration in range(1, max_iterations + 1):
+        for _ in range(max_iterations):
             updated = sweep(current)
             change = float(np.max(np.abs(updated - current)))
             self.history.append(change)
             current = updated
             if change < self.epsilon:
                 break
-        return current, iteration
+        return current, len(self.history)

@@ -31,24 +31,49 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=641, help="seed of the Monte-Carlo check")
     parser.add_argument("--gamma", type=float, default=0.95, help="discount factor")
     parser.add_argument("--epsilon", type=float, default=1e-4, help="sup-norm stopping threshold")
-    parser.add_argument("--max_iter", "--max-iter", dest="max_iter", type=int, default=1000,
-                        help="maximum number of sweeps")
-    parser.add_argument("--mc_episodes", "--mc-episodes", dest="mc_episodes", type=int,
-                        default=10_000, help="episodes of the Monte-Carlo check of V(start)")
-    parser.add_argument("--results_dir", "--results-dir", dest="results_dir", type=Path,
-                        default=RESULTS_DIR, help="output folder")
+    parser.add_argument(
+        "--max_iter",
+        "--max-iter",
+        dest="max_iter",
+        type=int,
+        default=1000,
+        help="maximum number of sweeps",
+    )
+    parser.add_argument(
+        "--mc_episodes",
+        "--mc-episodes",
+        dest="mc_episodes",
+        type=int,
+        default=10_000,
+        help="episodes of the Monte-Carlo check of V(start)",
+    )
+    parser.add_argument(
+        "--results_dir",
+        "--results-dir",
+        dest="results_dir",
+        type=Path,
+        default=RESULTS_DIR,
+        help="output folder",
+    )
     return parser.parse_args(argv)
 
 
-def timed_solve(solver: ValueIteration | QIteration, max_iter: int) -> tuple[np.ndarray, int, float]:
+def timed_solve(
+    solver: ValueIteration | QIteration, max_iter: int
+) -> tuple[np.ndarray, int, float]:
     """``solve`` plus its wall time in seconds."""
     start = time.perf_counter()
     solution, iterations = solver.solve(max_iter)
     return solution, iterations, time.perf_counter() - start
 
 
-def policies_agree(q_star: np.ndarray, policy_a: np.ndarray, policy_b: np.ndarray,
-                   absorbing: np.ndarray, tolerance: float) -> bool:
+def policies_agree(
+    q_star: np.ndarray,
+    policy_a: np.ndarray,
+    policy_b: np.ndarray,
+    absorbing: np.ndarray,
+    tolerance: float,
+) -> bool:
     """True when, in every decision state, both policies pick an action whose value is
     within ``tolerance`` of the best one (so two equally good actions count as agreement)."""
     rows = np.arange(len(q_star))
@@ -57,8 +82,9 @@ def policies_agree(q_star: np.ndarray, policy_a: np.ndarray, policy_b: np.ndarra
     return bool(np.all((near_optimal[0] & near_optimal[1]) | absorbing))
 
 
-def monte_carlo_return(env: GridWorldEnv, policy: np.ndarray, gamma: float,
-                       episodes: int) -> dict[str, Any]:
+def monte_carlo_return(
+    env: GridWorldEnv, policy: np.ndarray, gamma: float, episodes: int
+) -> dict[str, Any]:
     """Discounted return from the start over ``episodes`` runs of ``policy`` with ``env.step``.
 
     Episodes stop at the goal or at the 50-step limit, so this estimates the
@@ -74,8 +100,11 @@ def monte_carlo_return(env: GridWorldEnv, policy: np.ndarray, gamma: float,
         returns[episode] = total
     mean = float(returns.mean())
     half_width = Z_99 * float(returns.std(ddof=1)) / math.sqrt(episodes)
-    return {"episodes": episodes, "mean_return": mean,
-            "ci99": [mean - half_width, mean + half_width]}
+    return {
+        "episodes": episodes,
+        "mean_return": mean,
+        "ci99": [mean - half_width, mean + half_width],
+    }
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -101,20 +130,35 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     lo, hi = monte_carlo["ci99"]
     monte_carlo["contains_v_start"] = bool(lo <= values[start] <= hi)
 
-    def solver_summary(iterations: int, seconds: float, residual: float,
-                       history: list[float], start_value: float) -> dict[str, Any]:
-        return {"iterations": iterations, "converged": history[-1] < args.epsilon,
-                "wall_time_s": seconds, "seconds_per_sweep": seconds / iterations,
-                "final_change": history[-1], "bellman_residual": residual,
-                "v_start": start_value}
+    def solver_summary(
+        iterations: int, seconds: float, residual: float, history: list[float], start_value: float
+    ) -> dict[str, Any]:
+        return {
+            "iterations": iterations,
+            "converged": history[-1] < args.epsilon,
+            "wall_time_s": seconds,
+            "seconds_per_sweep": seconds / iterations,
+            "final_change": history[-1],
+            "bellman_residual": residual,
+            "v_start": start_value,
+        }
 
     summary = {
-        "gamma": args.gamma, "epsilon": args.epsilon, "seed": args.seed,
-        "start_state": start, "v_start": float(values[start]),
-        "value_iteration": solver_summary(vi_iterations, vi_seconds, vi_residual, vi.history,
-                                          float(values[start])),
-        "q_iteration": solver_summary(qi_iterations, qi_seconds, qi_residual, qi.history,
-                                      float(qi.extract_values(q_values)[start])),
+        "gamma": args.gamma,
+        "epsilon": args.epsilon,
+        "seed": args.seed,
+        "start_state": start,
+        "v_start": float(values[start]),
+        "value_iteration": solver_summary(
+            vi_iterations, vi_seconds, vi_residual, vi.history, float(values[start])
+        ),
+        "q_iteration": solver_summary(
+            qi_iterations,
+            qi_seconds,
+            qi_residual,
+            qi.history,
+            float(qi.extract_values(q_values)[start]),
+        ),
         "max_value_difference_vi_qi": float(np.max(np.abs(values - qi.extract_values(q_values)))),
         "policies_agree": agree,
         "policies_identical": bool(np.array_equal(vi_policy, qi_policy)),
@@ -126,20 +170,39 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         },
     }
 
-    atomic_save_npz(out / "value_function.npz", values=values, iterations=vi_iterations,
-                    history=np.array(vi.history), gamma=args.gamma, epsilon=args.epsilon)
-    atomic_save_npz(out / "q_function.npz", q_values=q_values, iterations=qi_iterations,
-                    history=np.array(qi.history), gamma=args.gamma, epsilon=args.epsilon)
-    atomic_save_npz(out / "optimal_policy.npz", policy=vi_policy, vi_policy=vi_policy,
-                    qi_policy=qi_policy)
+    atomic_save_npz(
+        out / "value_function.npz",
+        values=values,
+        iterations=vi_iterations,
+        history=np.array(vi.history),
+        gamma=args.gamma,
+        epsilon=args.epsilon,
+    )
+    atomic_save_npz(
+        out / "q_function.npz",
+        q_values=q_values,
+        iterations=qi_iterations,
+        history=np.array(qi.history),
+        gamma=args.gamma,
+        epsilon=args.epsilon,
+    )
+    atomic_save_npz(
+        out / "optimal_policy.npz", policy=vi_policy, vi_policy=vi_policy, qi_policy=qi_policy
+    )
     atomic_save_json(out / "summary.json", summary)
 
-    print(f"value iteration: {vi_iterations} sweeps, {vi_seconds * 1e3:.1f} ms, "
-          f"residual {vi_residual:.2e}")
-    print(f"Q-iteration:     {qi_iterations} sweeps, {qi_seconds * 1e3:.1f} ms, "
-          f"residual {qi_residual:.2e}")
-    print(f"V(start) = {values[start]:.4f}; Monte-Carlo {monte_carlo['mean_return']:.4f} "
-          f"(99 % CI {lo:.4f} .. {hi:.4f}); policies agree: {agree}")
+    print(
+        f"value iteration: {vi_iterations} sweeps, {vi_seconds * 1e3:.1f} ms, "
+        f"residual {vi_residual:.2e}"
+    )
+    print(
+        f"Q-iteration:     {qi_iterations} sweeps, {qi_seconds * 1e3:.1f} ms, "
+        f"residual {qi_residual:.2e}"
+    )
+    print(
+        f"V(start) = {values[start]:.4f}; Monte-Carlo {monte_carlo['mean_return']:.4f} "
+        f"(99 % CI {lo:.4f} .. {hi:.4f}); policies agree: {agree}"
+    )
     env.render(values)
     visualize_results(out)
     print(f"results written to {out}")

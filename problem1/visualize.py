@@ -1,6 +1,6 @@
 """Figures for Problem 1: value heatmap with policy arrows, policy, Q-functions, convergence.
 
-    python visualize.py    # redraws the figures from the .npz files that train.py wrote
+python visualize.py    # redraws the figures from the .npz files that train.py wrote
 """
 
 from __future__ import annotations
@@ -28,8 +28,10 @@ class GridWorldVisualizer:
     def __init__(self, grid_size: int = 5, env: GridWorldEnv | None = None) -> None:
         self.env = env if env is not None else GridWorldEnv()
         if self.env.grid_size != grid_size:
-            raise ValueError(f"grid_size {grid_size} does not match the layout "
-                             f"({self.env.grid_size}x{self.env.grid_size})")
+            raise ValueError(
+                f"grid_size {grid_size} does not match the layout "
+                f"({self.env.grid_size}x{self.env.grid_size})"
+            )
         self.grid_size = grid_size
         self.n_states = grid_size * grid_size
         # cells without a decision: obstacles and the terminal goal (their value is fixed at 0)
@@ -37,10 +39,16 @@ class GridWorldVisualizer:
         self.absorbing_cells[self.env.goal_pos] = True
 
     # ------------------------------------------------------------------ building blocks
-    def draw_grid(self, ax: Axes, values: np.ndarray | None = None,
-                  policy: np.ndarray | None = None, title: str = "",
-                  annotate: bool = True, vmin: float | None = None,
-                  vmax: float | None = None):
+    def draw_grid(
+        self,
+        ax: Axes,
+        values: np.ndarray | None = None,
+        policy: np.ndarray | None = None,
+        title: str = "",
+        annotate: bool = True,
+        vmin: float | None = None,
+        vmax: float | None = None,
+    ):
         """Draw one grid on ``ax``: optional value heatmap (S,), optional arrows (S,).
 
         Obstacles are black, the goal, penalty and start cells are framed and labelled.
@@ -49,8 +57,9 @@ class GridWorldVisualizer:
         n = self.grid_size
         image = None
         if values is not None:
-            grid = np.ma.masked_array(np.asarray(values, dtype=float).reshape(n, n),
-                                      mask=self.absorbing_cells)
+            grid = np.ma.masked_array(
+                np.asarray(values, dtype=float).reshape(n, n), mask=self.absorbing_cells
+            )
             image = ax.imshow(grid, cmap="viridis", vmin=vmin, vmax=vmax)
             if annotate:
                 self._annotate_values(ax, grid, image)
@@ -60,16 +69,30 @@ class GridWorldVisualizer:
             ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, color="black"))
         goal_r, goal_c = self.env.goal_pos
         ax.add_patch(Rectangle((goal_c - 0.5, goal_r - 0.5), 1, 1, color="#a6d96a"))
-        special = [("goal", [self.env.goal_pos]), ("penalty", self.env.penalties),
-                   ("start", [self.env.start_pos])]
+        special = [
+            ("goal", [self.env.goal_pos]),
+            ("penalty", self.env.penalties),
+            ("start", [self.env.start_pos]),
+        ]
         for kind, cells in special:
             colour, label = CELL_STYLE[kind]
             for r, c in cells:
-                ax.add_patch(Rectangle((c - 0.46, r - 0.46), 0.92, 0.92, fill=False,
-                                       edgecolor=colour, linewidth=3))
-                ax.text(c, r - 0.36, label, ha="center", va="center", fontsize=6,
-                        color=colour, fontweight="bold",
-                        bbox={"facecolor": "white", "edgecolor": "none", "pad": 0.5})
+                ax.add_patch(
+                    Rectangle(
+                        (c - 0.46, r - 0.46), 0.92, 0.92, fill=False, edgecolor=colour, linewidth=3
+                    )
+                )
+                ax.text(
+                    c,
+                    r - 0.36,
+                    label,
+                    ha="center",
+                    va="center",
+                    fontsize=6,
+                    color=colour,
+                    fontweight="bold",
+                    bbox={"facecolor": "white", "edgecolor": "none", "pad": 0.5},
+                )
         if policy is not None:
             self._draw_arrows(ax, np.asarray(policy), shift=0.2 if values is not None else 0.0)
         ax.set_xticks(range(n))
@@ -84,8 +107,15 @@ class GridWorldVisualizer:
             if np.isnan(value):
                 continue
             brightness = np.mean(image.cmap(image.norm(value))[:3])
-            ax.text(c, r - 0.17, f"{value:.2f}", ha="center", va="center", fontsize=8,
-                    color="black" if brightness > 0.5 else "white")
+            ax.text(
+                c,
+                r - 0.17,
+                f"{value:.2f}",
+                ha="center",
+                va="center",
+                fontsize=8,
+                color="black" if brightness > 0.5 else "white",
+            )
 
     def _draw_arrows(self, ax: Axes, policy: np.ndarray, shift: float) -> None:
         """One arrow per decision state (not the goal, not obstacles)."""
@@ -94,13 +124,20 @@ class GridWorldVisualizer:
             if self.absorbing_cells[r, c]:
                 continue
             dr, dc = MOVES[int(action)]
-            ax.annotate("", xy=(c + 0.25 * dc, r + shift + 0.2 * dr),
-                        xytext=(c - 0.15 * dc, r + shift - 0.1 * dr),
-                        arrowprops={"arrowstyle": "-|>", "color": "#f03b20", "lw": 2})
+            ax.annotate(
+                "",
+                xy=(c + 0.25 * dc, r + shift + 0.2 * dr),
+                xytext=(c - 0.15 * dc, r + shift - 0.1 * dr),
+                arrowprops={"arrowstyle": "-|>", "color": "#f03b20", "lw": 2},
+            )
 
     # ------------------------------------------------------------------ figures
-    def plot_value_function(self, values: np.ndarray, title: str = "Optimal state values V*",
-                            policy: np.ndarray | None = None) -> Figure:
+    def plot_value_function(
+        self,
+        values: np.ndarray,
+        title: str = "Optimal state values V*",
+        policy: np.ndarray | None = None,
+    ) -> Figure:
         """Heatmap of ``values`` (S,) with the value in each cell and optional policy arrows."""
         fig = Figure(figsize=(6.4, 5.6))
         ax = fig.subplots()
@@ -115,8 +152,9 @@ class GridWorldVisualizer:
         self.draw_grid(ax, None, policy, title)
         return fig
 
-    def plot_q_function(self, q_values: np.ndarray,
-                        title: str = "Optimal action values Q*(s, a)") -> Figure:
+    def plot_q_function(
+        self, q_values: np.ndarray, title: str = "Optimal action values Q*(s, a)"
+    ) -> Figure:
         """Four heatmaps, one per action, of ``q_values`` (S, 4) on a shared colour scale."""
         q_values = np.asarray(q_values, dtype=float)
         decision = ~self.absorbing_cells.reshape(-1)
@@ -124,29 +162,51 @@ class GridWorldVisualizer:
         fig = Figure(figsize=(10, 9), layout="constrained")
         axes = fig.subplots(2, 2)
         for action, ax in enumerate(axes.flat):
-            image = self.draw_grid(ax, q_values[:, action], None,
-                                   f"a = {action} ({ACTION_NAMES[action]})", vmin=vmin, vmax=vmax)
+            image = self.draw_grid(
+                ax,
+                q_values[:, action],
+                None,
+                f"a = {action} ({ACTION_NAMES[action]})",
+                vmin=vmin,
+                vmax=vmax,
+            )
         fig.colorbar(image, ax=axes, label="Q(s, a)  (expected discounted return)", shrink=0.6)
         fig.suptitle(title)
         return fig
 
-    def plot_convergence(self, vi_history: list[float], qi_history: list[float],
-                         gamma: float = 0.95, epsilon: float | None = 1e-4) -> Figure:
+    def plot_convergence(
+        self,
+        vi_history: list[float],
+        qi_history: list[float],
+        gamma: float = 0.95,
+        epsilon: float | None = 1e-4,
+    ) -> Figure:
         """Sup-norm change per sweep of both algorithms (log scale) with the contraction
         bound ``||x_{k+1} - x_k|| <= gamma^k ||x_1 - x_0||``."""
         fig = Figure(figsize=(7, 4.5))
         ax = fig.subplots()
-        for name, history, style in (("value iteration", vi_history, "o-"),
-                                     ("Q-iteration", qi_history, "s--")):
+        for name, history, style in (
+            ("value iteration", vi_history, "o-"),
+            ("Q-iteration", qi_history, "s--"),
+        ):
             sweeps = np.arange(1, len(history) + 1)
-            ax.semilogy(sweeps, history, style, markersize=3, label=f"{name} ({len(history)} sweeps)")
+            ax.semilogy(
+                sweeps, history, style, markersize=3, label=f"{name} ({len(history)} sweeps)"
+            )
         longest = max(len(vi_history), len(qi_history))
         sweeps = np.arange(1, longest + 1)
         first = max(vi_history[0], qi_history[0])
-        ax.semilogy(sweeps, first * gamma ** (sweeps - 1), ":", color="grey",
-                    label=f"contraction bound γ^(k−1)·Δ₁ (γ = {gamma})")
+        ax.semilogy(
+            sweeps,
+            first * gamma ** (sweeps - 1),
+            ":",
+            color="grey",
+            label=f"contraction bound γ^(k−1)·Δ₁ (γ = {gamma})",
+        )
         if epsilon is not None:
-            ax.axhline(epsilon, color="black", linewidth=0.8, label=f"stopping threshold ε = {epsilon:g}")
+            ax.axhline(
+                epsilon, color="black", linewidth=0.8, label=f"stopping threshold ε = {epsilon:g}"
+            )
         ax.set_xlabel("sweep k")
         ax.set_ylabel("sup-norm change  max |x_k − x_(k−1)|")
         ax.set_title("Convergence of value iteration and Q-iteration")
@@ -154,8 +214,13 @@ class GridWorldVisualizer:
         ax.legend()
         return fig
 
-    def create_comparison_figure(self, vi_values: np.ndarray, qi_values: np.ndarray,
-                                 vi_policy: np.ndarray, qi_policy: np.ndarray) -> Figure:
+    def create_comparison_figure(
+        self,
+        vi_values: np.ndarray,
+        qi_values: np.ndarray,
+        vi_policy: np.ndarray,
+        qi_policy: np.ndarray,
+    ) -> Figure:
         """Side by side: VI values and policy, QI values and policy, their absolute difference."""
         fig = Figure(figsize=(17, 5.2), layout="constrained")
         axes = fig.subplots(1, 3)
@@ -183,19 +248,24 @@ def visualize_results(results_dir: str | Path = RESULTS_DIR) -> dict[str, Path]:
         qi = np.load(results_dir / "q_function.npz")
         policies = np.load(results_dir / "optimal_policy.npz")
     except FileNotFoundError as error:
-        raise FileNotFoundError(f"{error.filename} is missing: run `python train.py` first") from None
+        raise FileNotFoundError(
+            f"{error.filename} is missing: run `python train.py` first"
+        ) from None
     gamma, epsilon = float(vi["gamma"]), float(vi["epsilon"])
     visualizer = GridWorldVisualizer()
     qi_values = qi["q_values"].max(axis=1)
     figures = {
         "value_heatmap.png": visualizer.plot_value_function(
-            vi["values"], "Optimal values V* with the optimal policy", policies["policy"]),
+            vi["values"], "Optimal values V* with the optimal policy", policies["policy"]
+        ),
         "policy_arrows.png": visualizer.plot_policy(policies["policy"]),
         "q_functions.png": visualizer.plot_q_function(qi["q_values"]),
-        "convergence.png": visualizer.plot_convergence(list(vi["history"]), list(qi["history"]),
-                                                       gamma, epsilon),
+        "convergence.png": visualizer.plot_convergence(
+            list(vi["history"]), list(qi["history"]), gamma, epsilon
+        ),
         "comparison.png": visualizer.create_comparison_figure(
-            vi["values"], qi_values, policies["vi_policy"], policies["qi_policy"]),
+            vi["values"], qi_values, policies["vi_policy"], policies["qi_policy"]
+        ),
     }
     out = results_dir / "visualizations"
     out.mkdir(parents=True, exist_ok=True)

@@ -36,8 +36,11 @@ def forbidden_imports(path: Path) -> list[str]:
     """Imports of ``path`` that are neither allowed libraries nor sibling modules."""
     local_modules = {p.stem for p in path.parent.glob("*.py")}
     allowed = ALLOWED_THIRD_PARTY | local_modules | set(sys.stdlib_module_names)
-    return [f"line {line}: {mod}" for line, mod in imported_top_level_modules(path)
-            if mod not in allowed]
+    return [
+        f"line {line}: {mod}"
+        for line, mod in imported_top_level_modules(path)
+        if mod not in allowed
+    ]
 
 
 @pytest.mark.parametrize("path", runtime_files(), ids=lambda p: str(p.relative_to(ROOT)))

@@ -1,0 +1,155 @@
+"""How the drift probability changes the optimal policy.
+
+    python stochasticity_study.py
+
+Solves the course gridworld with value iteration for drift probabilities
+0, 0.05, 0.1, 0.15, 0.2 and 0.3 per side (the intended move succeeds with
+``1 - 2 * drift``) and writes ``results/stochasticity_study.json``,
+``results/visualizations/stochasticity_policies.png`` and
+``results/visualizations/stochasticity_start_value.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from environment import GridWorldEnv
+from file_io import atomic_save_figure, atomic_save_json
+from matplotlib.figure import Figure
+from value_iteration import ValueIteration
+from visualize import GridWorldVisualizer
+
+RESULTS_DIR = Path(__file__).resolve().parent / "results"
+DRIFTS = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3)
+REFERENCE_DRIFT = 0.1  # the assignment's setting
+
+
+def solve_drift(drift: float, gamma: float, epsilon: float) -> dict[str, Any]:
+    """Value iteration at one drift level plus exact statistics of its greedy policy."""
+    env = GridWorldEnv(prob_drift=drift)
+    solver = ValueIteration(env, gamma=gamma, epsilon=epsilon)
+    values, iterations = solver.solve()
+    policy = solver.extract_policy(values)
+    model, start = solver.model, solver.model.start_state
+    penalty_cells = np.isin(model.next_states, [env._pos_to_state(p) for p in env.penalties])
+    # Undiscounted expectations (gamma = 1) under the policy, which reaches the goal surely.
+    steps = model.evaluate_policy(policy, 1.0, np.ones_like(model.rewards))
+    penalty_visits = model.evaluate_policy(policy, 1.0, penalty_cells.astype(float))
+    return {
+        "drift": drift,
+        "prob_intended": env.prob_intended,
+        "iterations": iterations,
+        "v_start": float(values[start]),
+        "expected_steps": float(steps[start]),
+        # a count: clip the -1e-17 round-off of the linear solve
+        "expected_penalty_visits": max(0.0, float(penalty_visits[start])),
+        "values": values.tolist(),
+        "policy": policy.tolist(),
+    }
+
+
+def detour_states(deterministic: dict[str, Any], noisy: dict[str, Any], gamma: float) -> list[int]:
+    """Decision states where the ``noisy`` policy picks an action that would be suboptimal
+    without drift: the places where noise makes the agent deviate from a shortest path.
+
+    Compared by value, so a different but equally good action is not a detour.
+    """
+    solver = ValueIteration(GridWorldEnv(prob_drift=deterministic["drift"]), gamma=gamma)
+    q_values = solver.model.action_values(np.array(deterministic["values"]), gamma)
+    rows = np.arange(solver.n_states)
+    chosen = q_values[rows, np.array(noisy["policy"])]
+    worse = chosen < q_values.max(axis=1) - 1e-6
+    return [int(s) for s in np.flatnonzero(worse & ~solver.model.absorbing)]
+
+
+def plot_policies(results: list[dict[str, Any]]) -> Figure:
+    """One value heatmap with policy arrows per drift level, on a shared colour scale."""
+    visualizer = GridWorldVisualizer()
+    all_values = np.concatenate([r["values"] for r in results])
+    fig = Figure(figsize=(15, 9.6), layout="constrained")
+    axes = fig.subplots(2, 3)
+    for result, ax in zip(results, axes.flat, strict=True):
+        image = visualizer.draw_grid(
+            ax,
+            np.array(result["values"]),
+            np.array(result["policy"]),
+            f"drift {result['drift']:.2f} per side (intended {result['prob_intended']:.1f})\n"
+            f"V(start) = {result['v_start']:.2f}",
+            vmin=float(all_values.min()),
+            vmax=float(all_values.max()),
+        )
+    fig.colorbar(image, ax=axes, label="V*(s)  (expected discounted return)", shrink=0.6)
+    fig.suptitle("Optimal values and policy as the transitions get noisier")
+    return fig
+
+
+def plot_start_value(results: list[dict[str, Any]]) -> Figure:
+    """V(start), expected steps and expected penalty visits against the drift probability."""
+    drifts = [r["drift"] for r in results]
+    fig = Figure(figsize=(13, 3.8), layout="constrained")
+    axes = fig.subplots(1, 3)
+    panels = (
+        ("v_start", "V*(start)  (discounted return)", "Value of the start state"),
+        ("expected_steps", "expected steps to the goal", "Episode length"),
+        ("expected_penalty_visits", "expected penalty-cell entries", "Penalties taken"),
+    )
+    for ax, (key, label, title) in zip(axes, panels, strict=True):
+        ax.plot(drifts, [r[key] for r in results], "o-")
+        ax.set_xlabel("drift probability per side")
+        ax.set_ylabel(label)
+        ax.set_title(title)
+        ax.grid(True, alpha=0.3)
+    return fig
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--gamma", type=float, default=0.95, help="discount factor")
+    parser.add_argument("--epsilon", type=float, default=1e-4, help="sup-norm stopping threshold")
+    parser.add_argument(
+        "--results_dir",
+        "--results-dir",
+        dest="results_dir",
+        type=Path,
+        default=RESULTS_DIR,
+        help="output folder",
+    )
+    args = parser.parse_args(argv)
+
+    results = [solve_drift(drift, args.gamma, args.epsilon) for drift in DRIFTS]
+    deterministic = results[0]
+    for result in results:
+        result["detour_states"] = detour_states(deterministic, result, args.gamma)
+    study = {
+        "gamma": args.gamma,
+        "epsilon": args.epsilon,
+        "reference_drift": REFERENCE_DRIFT,
+        "settings": results,
+    }
+
+    out = Path(args.results_dir)
+    (out / "visualizations").mkdir(parents=True, exist_ok=True)
+    atomic_save_json(out / "stochasticity_study.json", study)
+    atomic_save_figure(
+        out / "visualizations" / "stochasticity_policies.png", plot_policies(results)
+    )
+    atomic_save_figure(
+        out / "visualizations" / "stochasticity_start_value.png", plot_start_value(results)
+    )
+    print(
+        f"{'drift':>6} {'sweeps':>6} {'V(start)':>9} {'E[steps]':>9} {'E[penalties]':>12}"
+        f" {'detour states':>14}"
+    )
+    for r in results:
+        print(
+            f"{r['drift']:6.2f} {r['iterations']:6d} {r['v_start']:9.3f} {r['expected_steps']:9.2f}"
+            f" {r['expected_penalty_visits']:12.3f} {len(r['detour_states']):14d}"
+        )
+    return study
+
+
+if __name__ == "__main__":
+    main()
