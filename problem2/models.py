@@ -133,6 +133,8 @@ def export_policy(
     in eval mode is exported). Returns the path written."""
     if isinstance(mask, str):
         mask = observation_mask(mask)
+    elif isinstance(mask, torch.Tensor):
+        mask = mask.detach().cpu().numpy()
     mask_tensor = torch.from_numpy(np.array(mask, dtype=np.float32)).flatten()  # a copy
     input_dim = network.hidden.in_features
     if mask_tensor.numel() != input_dim:

@@ -1,0 +1,111 @@
+"""Baseline policies and the shared episode loop."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from baselines import (
+    MAP_SEEDS,
+    evaluate_baselines,
+    evaluate_policy,
+    format_table,
+    main,
+    oracle_policy,
+    random_policy,
+    run_episodes,
+    shortest_path_actions,
+)
+from multi_agent_env import ACTION_DELTAS, VectorMultiAgentEnv, generate_map, target_distances
+
+
+@pytest.mark.parametrize("map_seed", MAP_SEEDS)
+def test_oracle_always_succeeds_along_shortest_paths(map_seed: int) -> None:
+    grid = generate_map((10, 10), map_seed)
+    env = VectorMultiAgentEnv(200, grid=grid)
+    results = run_episodes(env, oracle_policy(grid), 200, seed=1, record=True)
+    assert results.successes.all()
+    distances = target_distances(grid)
+    start = results.trajectories["positions"][:, 0]
+    farther = np.maximum(distances[start[:, 0, 0], start[:, 0, 1]],
+                         distances[start[:, 1, 0], start[:, 1, 1]])  # fmt: skip
+    assert np.array_equal(results.lengths, farther)  # the slower agent sets the pace
+    assert (results.lengths <= 50).all()
+
+
+def test_random_policy_rarely_succeeds() -> None:
+    grid = generate_map((10, 10), 641)
+    summary = evaluate_policy(VectorMultiAgentEnv(1000, grid=grid), random_policy(0), 1000, 0)
+    assert summary["episodes"] == 1000
+    assert summary["success_rate"] < 0.05
+    assert summary["mean_return"] < 0
+
+
+def test_shortest_path_actions_move_one_step_closer() -> None:
+    grid = generate_map((10, 10), 3)
+    distances = target_distances(grid)
+    actions = shortest_path_actions(grid)
+    for row, col in np.argwhere(distances > 0):
+        d_row, d_col = ACTION_DELTAS[actions[row, col]]
+        assert distances[row + d_row, col + d_col] == distances[row, col] - 1
+    assert actions[tuple(np.argwhere(grid == 2)[0])] == 4  # Stay on the target
+
+
+def test_episode_loop_is_reproducible_and_counts_exactly() -> None:
+    env = VectorMultiAgentEnv(10, seed=641)
+    first = run_episodes(env, random_policy(5), 25, seed=3, record=True)
+    again = run_episodes(env, random_policy(5), 25, seed=3, record=True)
+    assert len(first.returns) == 25  # three rounds of ten, the last one cut
+    assert np.array_equal(first.returns, again.returns)
+    assert np.array_equal(first.trajectories["positions"], again.trajectories["positions"])
+    assert (first.lengths >= 1).all() and (first.lengths <= 50).all()
+
+
+def test_recorded_trajectories_are_consistent() -> None:
+    grid = generate_map((10, 10), 0)
+    env = VectorMultiAgentEnv(20, grid=grid)
+    results = run_episodes(env, random_policy(1), 20, seed=0, record=True)
+    log = results.trajectories
+    assert log["positions"].shape == (20, 51, 2, 2)
+    assert log["observations"].shape == (20, 51, 2, 11)
+    for episode, length in enumerate(results.lengths):
+        assert (log["actions"][episode, :length] >= 0).all()
+        assert (log["actions"][episode, length:] == -1).all()
+        assert np.isnan(log["messages"][episode, length:]).all()
+        assert log["rewards"][episode].sum() == pytest.approx(results.returns[episode], abs=1e-4)
+        steps = np.abs(np.diff(log["positions"][episode, : length + 1], axis=0)).sum(axis=-1)
+        assert (steps <= 1).all()
+        received = log["observations"][episode, 1 : length + 1, :, 9]
+        assert np.allclose(received, log["messages"][episode, :length, ::-1])
+
+
+def test_episode_loop_rejects_bad_arguments() -> None:
+    with pytest.raises(ValueError, match="auto_reset"):
+        run_episodes(VectorMultiAgentEnv(2, auto_reset=False), random_policy(0), 2)
+    with pytest.raises(ValueError, match="num_episodes"):
+        run_episodes(VectorMultiAgentEnv(2), random_policy(0), 0)
+
+
+def test_baseline_script_writes_json(tmp_path: Path, monkeypatch, capsys) -> None:
+    output = tmp_path / "evaluation_results" / "baselines.json"
+    monkeypatch.setattr(sys, "argv", ["baselines.py", "--episodes", "30", "--output", str(output)])
+    main()
+    results = json.loads(output.read_text())
+    assert set(results["maps"]) == {str(seed) for seed in MAP_SEEDS}
+    for entry in results["maps"].values():
+        assert entry["oracle"]["success_rate"] == 1.0
+        assert set(entry["random"]) >= {"success_rate", "mean_return_arrival"}
+        assert np.array(entry["grid"]).shape == (10, 10)
+    assert "oracle" in capsys.readouterr().out
+
+
+def test_table_lists_every_map_and_policy() -> None:
+    results = evaluate_baselines(num_episodes=20, map_seeds=(641, 0))
+    table = format_table(results).splitlines()
+    assert len(table) == 2 + 4
+    assert results["maps"]["641"]["target"] == list(
+        map(int, np.argwhere(generate_map((10, 10), 641) == 2)[0])
+    )

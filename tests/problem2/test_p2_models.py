@@ -1,0 +1,121 @@
+"""Q-networks, the message head, observation masks and TorchScript export."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from models import (
+    OBSERVATION_MASKS,
+    AgentDQN,
+    DuelingDQN,
+    export_policy,
+    load_policy,
+    observation_mask,
+)
+
+pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.\\w+` is deprecated:DeprecationWarning")
+
+
+def test_agent_dqn_follows_the_formula() -> None:
+    torch.manual_seed(0)
+    network = AgentDQN()
+    x = torch.randn(4, 11)
+    hidden = torch.relu(x @ network.hidden.weight.T + network.hidden.bias)
+    q_values, comm = network(x)
+    assert torch.allclose(q_values, hidden @ network.q_head.weight.T + network.q_head.bias)
+    logit = hidden @ network.message_head.weight.T + network.message_head.bias
+    assert torch.allclose(comm, torch.sigmoid(logit))
+
+
+def test_dueling_q_is_value_plus_centred_advantage() -> None:
+    torch.manual_seed(0)
+    network = DuelingDQN(hidden_dim=32)
+    x = torch.randn(6, 11)
+    hidden = torch.relu(network.hidden(x))
+    value, advantage = network.value_head(hidden), network.advantage_head(hidden)
+    q_values, _ = network(x)
+    assert torch.allclose(q_values, value + advantage - advantage.mean(dim=1, keepdim=True))
+    assert torch.allclose(q_values.mean(dim=1, keepdim=True), value, atol=1e-6)
+
+
+@pytest.mark.parametrize("network_class", [AgentDQN, DuelingDQN])
+def test_logit_method_matches_forward_and_trains_the_message_head(network_class) -> None:
+    torch.manual_seed(0)
+    network = network_class()
+    x = torch.randn(5, 11)
+    q_values, logit = network.forward_with_logit(x)
+    q_forward, comm = network(x)
+    assert torch.allclose(q_values, q_forward) and torch.allclose(torch.sigmoid(logit), comm)
+    noisy_message = torch.sigmoid(logit + 0.5 * torch.randn_like(logit))  # DIAL-style
+    noisy_message.sum().backward()
+    assert network.message_head.weight.grad is not None
+    assert network.message_head.weight.grad.abs().sum() > 0
+    scripted = torch.jit.script(network)
+    assert torch.allclose(scripted.forward_with_logit(x)[1], logit)
+
+
+def test_observation_masks() -> None:
+    ones = np.ones(11, dtype=np.float32)
+    expected = {"independent": [9, 10], "comm": [10], "full": []}
+    assert set(OBSERVATION_MASKS) == set(expected)
+    for mode, zeroed in expected.items():
+        mask = observation_mask(mode)
+        assert mask.dtype == np.float32 and mask.shape == (11,)
+        assert np.flatnonzero(mask != ones).tolist() == zeroed
+        assert not mask.flags.writeable
+    with pytest.raises(ValueError, match="unknown mode"):
+        observation_mask("both")
+
+
+@pytest.mark.parametrize("network_class", [AgentDQN, DuelingDQN])
+@pytest.mark.parametrize("mode", ["independent", "comm", "full"])
+def test_export_round_trip_applies_the_mask(tmp_path: Path, network_class, mode: str) -> None:
+    torch.manual_seed(1)
+    network = network_class(hidden_dim=128)
+    network.train()
+    path = export_policy(network, mode, tmp_path / "models" / "agent_A.pt")
+    assert path.is_file() and network.training  # the original is left as it was
+    policy = load_policy(path)
+    obs = torch.rand(8, 11)
+    q_values, comm = policy(obs)
+    mask = torch.from_numpy(np.array(OBSERVATION_MASKS[mode]))
+    expected_q, expected_comm = network(obs * mask)
+    assert torch.allclose(q_values, expected_q) and torch.allclose(comm, expected_comm)
+    single_q, single_comm = policy(obs[0])
+    assert single_q.shape == (5,) and single_comm.shape == (1,)
+    assert torch.allclose(single_q, expected_q[0])
+    if mode != "full":  # masked elements cannot change the output
+        changed = obs.clone()
+        changed[:, 10] += 5.0
+        assert torch.allclose(policy(changed)[0], q_values)
+
+
+def test_export_accepts_a_custom_mask(tmp_path: Path) -> None:
+    network = AgentDQN()
+    mask = [1.0] * 9 + [0.0, 1.0]
+    policy = load_policy(export_policy(network, torch.tensor(mask), tmp_path / "p.pt"))
+    obs = torch.rand(3, 11)
+    assert torch.allclose(policy(obs)[0], network(obs * torch.tensor(mask))[0])
+
+
+def test_export_rejects_a_mask_of_the_wrong_length(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="mask has 10 elements"):
+        export_policy(AgentDQN(), [1.0] * 10, tmp_path / "p.pt")
+    assert not any(tmp_path.iterdir())
+
+
+def test_load_policy_names_a_missing_or_corrupt_file(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match="missing.pt"):
+        load_policy(tmp_path / "missing.pt")
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes(b"this is not a TorchScript archive")
+    with pytest.raises(ValueError, match="corrupt.pt"):
+        load_policy(corrupt)
+    truncated = tmp_path / "truncated.pt"
+    export_policy(AgentDQN(), "full", truncated)
+    truncated.write_bytes(truncated.read_bytes()[:200])
+    with pytest.raises(ValueError, match="truncated.pt"):
+        load_policy(truncated)

@@ -1,0 +1,199 @@
+"""Replay buffers: ring storage, extras, seeded sampling, the sum-tree and PER weights."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from replay_buffer import TRANSITION_FIELDS, PrioritizedReplayBuffer, ReplayBuffer, SumTree
+
+
+def batch_of(first: int, count: int, obs_dim: int = 11) -> dict[str, np.ndarray]:
+    """``count`` transitions numbered from ``first``; every field encodes the number."""
+    ids = np.arange(first, first + count)
+    state = np.repeat(ids[:, None], obs_dim, axis=1).astype(np.float32)
+    fields = {name: state + k for k, name in enumerate(["state_A", "state_B"])}
+    fields |= {"next_state_A": state + 0.5, "next_state_B": state + 0.75}
+    fields |= {"action_A": ids % 5, "action_B": (ids + 1) % 5, "done": ids % 2 == 0}
+    fields |= {"comm_A": ids / 1000, "comm_B": ids / 2000, "reward": -ids.astype(float)}
+    return fields
+
+
+def test_ring_buffer_keeps_the_latest_transitions() -> None:
+    buffer = ReplayBuffer(capacity=5, seed=0)
+    buffer.push_batch(**batch_of(0, 3))
+    buffer.push_batch(**batch_of(3, 4))
+    assert len(buffer) == 5
+    states = np.concatenate([buffer.sample(5)[0] for _ in range(40)])
+    assert set(states[:, 0].tolist()) == {2.0, 3.0, 4.0, 5.0, 6.0}
+    buffer.push_batch(**batch_of(100, 12))  # more than the capacity: keep the last five
+    assert set(buffer.get(np.arange(5))["state_A"][:, 0].tolist()) == {107, 108, 109, 110, 111}
+
+
+def test_sampled_fields_stay_aligned_and_typed() -> None:
+    buffer = ReplayBuffer(capacity=50, seed=1)
+    buffer.push_batch(**batch_of(0, 30))
+    sample = buffer.sample(30)
+    fields = dict(zip(TRANSITION_FIELDS, sample, strict=True))
+    ids = fields["state_A"][:, 0].astype(int)
+    assert np.array_equal(fields["state_B"][:, 0], ids + 1)
+    assert np.array_equal(fields["next_state_B"][:, 0], ids + 0.75)
+    assert np.array_equal(fields["action_A"], ids % 5)
+    assert np.allclose(fields["reward"], -ids)
+    assert np.array_equal(fields["done"], (ids % 2 == 0).astype(np.float32))
+    assert fields["action_A"].dtype == np.int64 and fields["done"].dtype == np.float32
+    assert fields["state_A"].dtype == np.float32 and fields["reward"].dtype == np.float32
+
+
+def test_single_push_and_batched_push_store_the_same() -> None:
+    one_by_one, batched = ReplayBuffer(10), ReplayBuffer(10)
+    batch = batch_of(0, 4)
+    for i in range(4):
+        one_by_one.push(*(batch[name][i] for name in TRANSITION_FIELDS))
+    batched.push_batch(**batch)
+    for name, values in one_by_one.get(np.arange(4)).items():
+        assert np.array_equal(values, batched.get(np.arange(4))[name])
+
+
+def test_sampling_is_seeded() -> None:
+    def draw(seed: int) -> np.ndarray:
+        buffer = ReplayBuffer(100, seed=seed)
+        buffer.push_batch(**batch_of(0, 100))
+        return buffer.sample(32)[0]  # with replacement, seeded
+
+    assert np.array_equal(draw(3), draw(3))
+    assert not np.array_equal(draw(3), draw(4))
+
+
+def test_extras_are_stored_beside_the_required_fields() -> None:
+    buffer = ReplayBuffer(20, seed=0)
+    batch = batch_of(0, 8)
+    partner = batch["state_B"] * 10
+    buffer.push_batch(**batch, prev_partner_obs_A=partner, prev_partner_obs_B=partner + 1)
+    assert buffer.field_names == (*TRANSITION_FIELDS, "prev_partner_obs_A", "prev_partner_obs_B")
+    fields, weights, indices = buffer.sample_batch(8)
+    assert np.array_equal(fields["prev_partner_obs_A"], fields["state_B"] * 10)
+    assert np.array_equal(fields["prev_partner_obs_B"], fields["state_B"] * 10 + 1)
+    assert np.array_equal(weights, np.ones(8, dtype=np.float32)) and indices.shape == (8,)
+    assert len(buffer.sample(4)) == 10  # sample() keeps to the ten required arrays
+    single = batch_of(50, 1)
+    buffer.push(*(single[name][0] for name in TRANSITION_FIELDS),
+                prev_partner_obs_A=np.zeros(11), prev_partner_obs_B=np.ones(11))  # fmt: skip
+    assert len(buffer) == 9
+
+
+@pytest.mark.parametrize("buffer_class", [ReplayBuffer, PrioritizedReplayBuffer])
+def test_buffer_input_errors(buffer_class) -> None:
+    buffer = buffer_class(capacity=10, seed=0)
+    with pytest.raises(ValueError, match="holds 0"):
+        buffer.sample(1)
+    buffer.push_batch(**batch_of(0, 3, obs_dim=10))
+    with pytest.raises(ValueError, match="cannot sample 4"):
+        buffer.sample(4)
+    with pytest.raises(ValueError, match="batch_size"):
+        buffer.sample(0)
+    with pytest.raises(ValueError, match="per-transition shape"):
+        buffer.push_batch(**batch_of(3, 2, obs_dim=11))
+    with pytest.raises(ValueError, match="missing required fields"):
+        buffer.push_batch(**{k: v for k, v in batch_of(3, 2).items() if k != "reward"})
+    with pytest.raises(ValueError, match="leading"):
+        buffer.push_batch(**(batch_of(3, 2, obs_dim=10) | {"reward": np.zeros(3)}))
+    with pytest.raises(ValueError, match="differ from those of the first push"):
+        buffer.push_batch(**batch_of(3, 2, obs_dim=10), extra=np.zeros(2))
+    with pytest.raises(ValueError, match="capacity"):
+        buffer_class(capacity=0)
+    assert len(buffer) == 3
+
+
+# --------------------------------------------------------------------------- sum-tree
+def test_sum_tree_matches_brute_force() -> None:
+    rng = np.random.default_rng(0)
+    tree = SumTree(13)  # not a power of two
+    priorities = np.zeros(13)
+    for _ in range(50):
+        leaves = rng.choice(13, size=rng.integers(1, 6), replace=False)
+        priorities[leaves] = rng.random(len(leaves)) * 5 + 0.01
+        tree.update(leaves, priorities[leaves])
+        assert tree.total == pytest.approx(priorities.sum())
+        prefix_sums = rng.random(20) * priorities.sum()
+        expected = np.searchsorted(np.cumsum(priorities), prefix_sums, side="right")
+        assert np.array_equal(tree.find(prefix_sums), expected)
+    assert np.allclose(tree.values(np.arange(13)), priorities)
+
+
+def test_sum_tree_of_one_leaf() -> None:
+    tree = SumTree(1)
+    tree.update(np.array([0]), 3.0)
+    assert tree.total == 3.0 and tree.find(np.array([0.0, 2.9])).tolist() == [0, 0]
+
+
+@pytest.mark.parametrize("alpha", [1.0, 0.5])
+def test_sampling_frequencies_follow_priorities(alpha: float) -> None:
+    """Chi-square goodness of fit over 10 slots (9 degrees of freedom), 16 000 draws: the
+    statistic must stay below 27.88, its 99.9 % quantile under multinomial sampling.
+    Stratified sampling only lowers the variance, so the test errs on the safe side."""
+    buffer = PrioritizedReplayBuffer(capacity=10, alpha=alpha, seed=0)
+    buffer.push_batch(**batch_of(0, 10))
+    priorities = np.arange(1.0, 11.0)
+    buffer.update_priorities(np.arange(10), priorities)
+    counts = np.zeros(10)
+    for _ in range(1600):
+        _, _, indices = buffer.sample(10)
+        counts += np.bincount(indices, minlength=10)
+    expected = counts.sum() * priorities**alpha / (priorities**alpha).sum()
+    chi_square = ((counts - expected) ** 2 / expected).sum()
+    assert chi_square < 27.88
+
+
+def test_priority_weights_beta_and_new_transitions() -> None:
+    buffer = PrioritizedReplayBuffer(capacity=8, alpha=0.5, beta_start=0.4, beta_steps=4, seed=0)
+    buffer.push_batch(**batch_of(0, 4))
+    buffer.update_priorities(np.arange(4), [1.0, 4.0, 9.0, 16.0])
+    probabilities = np.array([1.0, 2.0, 3.0, 4.0]) / 10.0
+    betas = []
+    for _ in range(6):
+        beta = buffer.beta
+        betas.append(beta)
+        _, weights, indices = buffer.sample(4)
+        raw = (4 * probabilities[indices]) ** -beta
+        assert weights.dtype == np.float32
+        assert np.allclose(weights, raw / raw.max())
+    assert betas == pytest.approx([0.4, 0.55, 0.7, 0.85, 1.0, 1.0])
+    slots = buffer.push_batch(**batch_of(4, 1))
+    assert slots.tolist() == [4]
+    assert buffer._tree.values(slots)[0] == pytest.approx(16.0**0.5)  # the largest so far
+
+
+def test_only_stored_slots_are_sampled() -> None:
+    buffer = PrioritizedReplayBuffer(capacity=100, seed=0)
+    buffer.push_batch(**batch_of(0, 3))
+    for _ in range(200):
+        _, _, indices = buffer.sample(3)
+        assert indices.max() < 3
+
+
+@pytest.mark.parametrize(
+    ("indices", "priorities", "problem"),
+    [
+        ([0, 1], [1.0], "2 indices but 1 priorities"),
+        ([0, 5], [1.0, 1.0], "stored slots"),
+        ([-1], [1.0], "stored slots"),
+        ([0], [0.0], "positive and finite"),
+        ([0], [-1.0], "positive and finite"),
+        ([0], [np.nan], "positive and finite"),
+        ([0], [np.inf], "positive and finite"),
+    ],
+)
+def test_update_priorities_rejects_bad_input(indices, priorities, problem: str) -> None:
+    buffer = PrioritizedReplayBuffer(capacity=10)
+    buffer.push_batch(**batch_of(0, 3))
+    with pytest.raises(ValueError, match=problem):
+        buffer.update_priorities(indices, priorities)
+
+
+def test_prioritized_constructor_rejects_bad_hyperparameters() -> None:
+    with pytest.raises(ValueError, match="alpha"):
+        PrioritizedReplayBuffer(alpha=-0.1)
+    with pytest.raises(ValueError, match="beta_start"):
+        PrioritizedReplayBuffer(beta_start=1.5)
+    with pytest.raises(ValueError, match="beta_steps"):
+        PrioritizedReplayBuffer(beta_steps=0)
