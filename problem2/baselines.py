@@ -21,15 +21,8 @@ from pathlib import Path
 
 import numpy as np
 from _atomic import write_json_atomic
-from multi_agent_env import (
-    ACTION_DELTAS,
-    DEFAULT_MAP_SEED,
-    OBSTACLE,
-    REWARD_MODES,
-    VectorMultiAgentEnv,
-    generate_map,
-    target_distances,
-)
+from grid_maps import ACTION_DELTAS, DEFAULT_MAP_SEED, OBSTACLE, generate_map, target_distances
+from multi_agent_env import REWARD_MODES, VectorMultiAgentEnv
 
 # (observations (N, 2, obs_dim), positions (N, 2, 2)) -> (actions (N, 2), messages (N, 2))
 PolicyFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]

@@ -199,3 +199,9 @@ def test_auto_reset_starts_new_episodes_and_reports_the_final_state() -> None:
     new_a, new_b = env.positions[0]
     assert tuple(new_a) != tuple(new_b)
     assert GRID[tuple(new_a)] == 0 and GRID[tuple(new_b)] == 0
+
+
+@pytest.mark.parametrize(("mode", "expected"), [("arrival", -0.2), ("per_step", 1.9)])
+def test_starting_on_the_target_is_not_an_arrival(mode: str, expected: float) -> None:
+    env = make_env((3, 3), (0, 0), reward_mode=mode)
+    assert run(env, [(STAY, STAY)]) == [(pytest.approx(expected), False)]

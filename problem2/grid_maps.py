@@ -1,0 +1,123 @@
+"""Maps of the two-agent grid world: cell codes, moves, generation, validation, JSON files.
+
+A map is an int64 array (H, W): 0 free, 1 obstacle, 2 the single target. Every free cell
+must be able to reach the target.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+from _atomic import write_json_atomic
+
+FREE, OBSTACLE, TARGET, OFF_GRID = 0, 1, 2, -1
+ACTION_NAMES = ("Up", "Down", "Left", "Right", "Stay")
+NUM_ACTIONS = len(ACTION_NAMES)
+ACTION_DELTAS = np.array([[-1, 0], [1, 0], [0, -1], [0, 1], [0, 0]])  # (d_row, d_col)
+DEFAULT_MAP_SEED = 641  # the course default
+MAX_MAP_ATTEMPTS = 1000
+
+
+def check_grid_size(grid_size: tuple[int, int]) -> tuple[int, int]:
+    """``grid_size`` as two Python ints (rows, cols), each at least 3, or ValueError."""
+    try:
+        rows, cols = (int(n) for n in grid_size)
+        whole_numbers = (rows, cols) == tuple(grid_size)
+    except (TypeError, ValueError):
+        whole_numbers = False
+    if not whole_numbers:
+        raise ValueError(f"grid_size must be two integers (rows, cols), got {grid_size!r}")
+    if rows < 3 or cols < 3:
+        raise ValueError(f"grid must be at least 3×3, got {rows}×{cols}")
+    return rows, cols
+
+
+def target_distances(grid: np.ndarray) -> np.ndarray:
+    """Shortest-path length (H, W) int64 from every cell to the target by breadth-first
+    search over 4-neighbour moves; -1 for obstacles and cells that cannot reach it."""
+    rows, cols = grid.shape
+    distances = np.full((rows, cols), -1, dtype=np.int64)
+    start = tuple(int(i) for i in np.argwhere(grid == TARGET)[0])
+    distances[start] = 0
+    frontier = deque([start])
+    while frontier:
+        row, col = frontier.popleft()
+        for d_row, d_col in ACTION_DELTAS[:4]:
+            r, c = row + d_row, col + d_col
+            if 0 <= r < rows and 0 <= c < cols and grid[r, c] != OBSTACLE and distances[r, c] < 0:
+                distances[r, c] = distances[row, col] + 1
+                frontier.append((r, c))
+    return distances
+
+
+def check_grid(grid: np.ndarray | list) -> np.ndarray:
+    """Return ``grid`` as an int64 (H, W) array, or raise ValueError naming the problem:
+    not rectangular, smaller than 3×3, values outside {0, 1, 2}, not exactly one target,
+    fewer than two free cells, or a free cell that cannot reach the target."""
+    try:
+        array = np.array(grid)
+    except ValueError as error:
+        raise ValueError(f"map is not rectangular: {error}") from error
+    if array.ndim != 2:
+        raise ValueError(f"map must be a rectangular 2-D grid, got shape {array.shape}")
+    if array.dtype.kind not in "iu":
+        raise ValueError(f"map values must be integers, got dtype {array.dtype}")
+    check_grid_size(array.shape)
+    unknown = sorted(set(np.unique(array).tolist()) - {FREE, OBSTACLE, TARGET})
+    if unknown:
+        raise ValueError(f"map values must be 0 free, 1 obstacle or 2 target; found {unknown}")
+    if (n_targets := int((array == TARGET).sum())) != 1:
+        raise ValueError(f"map must contain exactly one target (2), found {n_targets}")
+    if (array == FREE).sum() < 2:
+        raise ValueError("map needs at least two free cells to place the agents")
+    cut_off = np.argwhere((array == FREE) & (target_distances(array) < 0))
+    if len(cut_off):
+        raise ValueError(
+            f"map is not connected: free cells {cut_off[:5].tolist()} cannot reach the target"
+        )
+    return array.astype(np.int64)
+
+
+def generate_map(grid_size: tuple[int, int] = (10, 10), seed: int | None = None) -> np.ndarray:
+    """Draw a map (H, W) int64 with ``np.random.default_rng(seed)``: 3–6 obstacles off the
+    four corners, then one target on a free cell, redrawn until every free cell reaches the
+    target. Raises ValueError if no such map turns up in ``MAX_MAP_ATTEMPTS`` draws."""
+    rows, cols = check_grid_size(grid_size)
+    rng = np.random.default_rng(seed)
+    corners = [0, cols - 1, (rows - 1) * cols, rows * cols - 1]
+    candidates = np.setdiff1d(np.arange(rows * cols), corners)
+    for _ in range(MAX_MAP_ATTEMPTS):
+        cells = np.zeros(rows * cols, dtype=np.int64)
+        n_obstacles = min(int(rng.integers(3, 7)), len(candidates))
+        cells[rng.choice(candidates, size=n_obstacles, replace=False)] = OBSTACLE
+        cells[rng.choice(np.flatnonzero(cells == FREE))] = TARGET
+        try:
+            return check_grid(cells.reshape(rows, cols))
+        except ValueError:
+            continue
+    raise ValueError(
+        f"no connected {rows}×{cols} map with 3–6 obstacles found in "
+        f"{MAX_MAP_ATTEMPTS} draws; use a larger grid"
+    )
+
+
+def save_map(path: str | Path, grid: np.ndarray) -> None:
+    """Write a validated map to ``path`` as JSON ``{"grid": [[...], ...]}`` (atomically)."""
+    write_json_atomic(path, {"grid": check_grid(grid).tolist()})
+
+
+def load_map(path: str | Path) -> np.ndarray:
+    """Read a map written by :func:`save_map`; ValueError (naming the file) if it is invalid."""
+    try:
+        content = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path}: not valid JSON ({error})") from error
+    if not isinstance(content, dict) or "grid" not in content:
+        raise ValueError(f"{path}: expected a JSON object with a 'grid' list of rows")
+    try:
+        return check_grid(content["grid"])
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from error
