@@ -48,15 +48,12 @@ def observation_mask(mode: str) -> np.ndarray:
 
 class MessagingQNetwork(nn.Module):
     """Shared part: the hidden ReLU layer, the sigmoid message head and ``forward``.
-    Subclasses add the Q head(s) and ``forward_with_logit``."""
+    Subclasses add the Q head(s) and define ``forward_with_logit(x) -> (q, logit)``."""
 
     def __init__(self, input_dim: int, hidden_dim: int) -> None:
         super().__init__()
         self.hidden = nn.Linear(input_dim, hidden_dim)
         self.message_head = nn.Linear(hidden_dim, 1)
-
-    def forward_with_logit(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        raise NotImplementedError
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``x`` [B, input_dim] -> (Q-values [B, num_actions], message [B, 1] in [0, 1])."""

@@ -1,0 +1,113 @@
+"""Both agents' Q-networks as one stacked module, for fast training on a CPU.
+
+Each agent keeps its own weights (independent learners), but the two networks are
+evaluated in one batched matrix product, and all their weights live in a single
+flat parameter, so that the optimiser step, the gradient clipping and zeroing the
+gradients are one tensor operation each instead of a dozen. On the 2-core CPU
+this halves the cost of an update, which dominates training time.
+
+``agent(i)`` turns agent ``i``'s slice back into a plain :class:`models.AgentDQN`
+(or :class:`models.DuelingDQN`) with identical outputs, for export and for the
+interface methods that take one network.
+"""
+
+from __future__ import annotations
+
+import torch
+from models import AgentDQN, DuelingDQN, MessagingQNetwork
+from torch import nn
+
+NUM_AGENTS = 2
+
+
+class PairedQNetworks(nn.Module):
+    """Two one-hidden-layer Q-networks with message heads, stacked along a leading axis.
+
+    Shapes (agent axis first): ``hidden_weight`` [2, H, D], ``hidden_bias`` [2, 1, H],
+    ``head_weight`` [2, K, H], ``head_bias`` [2, 1, K], where the K head outputs are the
+    ``num_actions`` Q-values (or advantages), then the state value for the dueling form,
+    then the message logit.
+    """
+
+    def __init__(
+        self, input_dim: int = 11, hidden_dim: int = 64, num_actions: int = 5, dueling: bool = False
+    ) -> None:
+        super().__init__()
+        self.input_dim, self.hidden_dim, self.num_actions = input_dim, hidden_dim, num_actions
+        self.dueling = dueling
+        self.head_dim = num_actions + (2 if dueling else 1)
+        shapes = {
+            "hidden_weight": (NUM_AGENTS, hidden_dim, input_dim),
+            "hidden_bias": (NUM_AGENTS, 1, hidden_dim),
+            "head_weight": (NUM_AGENTS, self.head_dim, hidden_dim),
+            "head_bias": (NUM_AGENTS, 1, self.head_dim),
+        }
+        self._shapes = list(shapes.values())
+        self._sizes = [torch.Size(shape).numel() for shape in self._shapes]
+        self.flat = nn.Parameter(torch.empty(sum(self._sizes)))
+        # Same initialisation as the interface classes (PyTorch's nn.Linear default).
+        self.load_agents(
+            [self._network_class()(input_dim, hidden_dim, num_actions) for _ in range(NUM_AGENTS)]
+        )
+
+    def _network_class(self) -> type[MessagingQNetwork]:
+        return DuelingDQN if self.dueling else AgentDQN
+
+    def weights(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The four weight tensors as views of ``flat``. Taking the views costs about as
+        much as a forward pass, so an update takes them once and passes them to every
+        :meth:`forward` of that update."""
+        pieces = torch.split(self.flat, self._sizes)
+        return tuple(p.view(s) for p, s in zip(pieces, self._shapes, strict=True))
+
+    def forward(
+        self, x: torch.Tensor, weights: tuple[torch.Tensor, ...] | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``x`` [2, B, D] (agent A's inputs, then B's) -> (Q [2, B, A], message logit [2, B, 1]).
+
+        ``weights``: the result of :meth:`weights`, to reuse across several passes."""
+        hidden_weight, hidden_bias, head_weight, head_bias = weights or self.weights()
+        hidden = torch.relu(torch.baddbmm(hidden_bias, x, hidden_weight.transpose(1, 2)))
+        heads = torch.baddbmm(head_bias, hidden, head_weight.transpose(1, 2))
+        logits = heads[..., -1:]
+        if not self.dueling:
+            return heads[..., : self.num_actions], logits
+        advantages = heads[..., : self.num_actions]
+        value = heads[..., self.num_actions : self.num_actions + 1]
+        return value + advantages - advantages.mean(dim=-1, keepdim=True), logits
+
+    @torch.no_grad()
+    def agent(self, index: int) -> MessagingQNetwork:
+        """Agent ``index``'s network as a standalone AgentDQN / DuelingDQN (a copy)."""
+        hidden_weight, hidden_bias, head_weight, head_bias = (v[index] for v in self.weights())
+        network = self._network_class()(self.input_dim, self.hidden_dim, self.num_actions)
+        network.hidden.weight.copy_(hidden_weight)
+        network.hidden.bias.copy_(hidden_bias[0])
+        for head, rows in self._head_rows(network).items():
+            head.weight.copy_(head_weight[rows])
+            head.bias.copy_(head_bias[0, rows])
+        return network
+
+    @torch.no_grad()
+    def load_agents(self, networks: list[MessagingQNetwork]) -> None:
+        """Copy two standalone networks into the stacked weights."""
+        hidden_weight, hidden_bias, head_weight, head_bias = self.weights()
+        for index, network in enumerate(networks):
+            hidden_weight[index].copy_(network.hidden.weight)
+            hidden_bias[index, 0].copy_(network.hidden.bias)
+            for head, rows in self._head_rows(network).items():
+                head_weight[index, rows].copy_(head.weight)
+                head_bias[index, 0, rows].copy_(head.bias)
+
+    def _head_rows(self, network: MessagingQNetwork) -> dict[nn.Linear, slice]:
+        """Which rows of the stacked head belong to which head of ``network``."""
+        actions = slice(0, self.num_actions)
+        message = slice(self.head_dim - 1, self.head_dim)
+        if self.dueling:
+            value = slice(self.num_actions, self.num_actions + 1)
+            return {
+                network.advantage_head: actions,
+                network.value_head: value,
+                network.message_head: message,
+            }
+        return {network.q_head: actions, network.message_head: message}
