@@ -7,9 +7,9 @@ PY     := $(CURDIR)/$(VENV)/bin/python
 RUNTIME_STAMP := $(VENV)/.runtime-installed
 DEV_STAMP     := $(VENV)/.dev-installed
 
-.PHONY: all problem1 test lint bench clean
+.PHONY: all problem1 problem2 p2-baselines p2-main p2-studies test lint bench clean
 
-all: problem1
+all: problem1 problem2
 
 $(VENV)/bin/python:
 	$(PYTHON) -m venv $(VENV)
@@ -26,6 +26,27 @@ $(DEV_STAMP): requirements-dev.txt $(RUNTIME_STAMP)
 problem1: $(RUNTIME_STAMP)
 	cd problem1 && $(PY) train.py && $(PY) stochasticity_study.py
 
+## Problem 2: baselines, the main experiment (3 modes x 5 seeds), the studies.
+P2_STUDIES := results/studies
+problem2: p2-baselines p2-main p2-studies
+
+p2-baselines: $(RUNTIME_STAMP)
+	cd problem2 && $(PY) baselines.py
+
+p2-main: $(RUNTIME_STAMP)
+	cd problem2 && $(PY) train.py
+
+p2-studies: $(RUNTIME_STAMP)
+	# The reward study keeps the final weights: picking checkpoints by success would
+	# select against the parking behaviour that the literal reward teaches.
+	cd problem2 && $(PY) train.py --mode full --reward_mode per_step --num_seeds 3 \
+		--no-keep_best --output_dir $(P2_STUDIES)/per_step
+	cd problem2 && $(PY) train.py --mode comm,full --comm_learning none --num_seeds 3 \
+		--output_dir $(P2_STUDIES)/no_dial
+	cd problem2 && for map in 0 1 2 3 4; do \
+		$(PY) train.py --map_seed $$map --num_seeds 3 \
+			--output_dir $(P2_STUDIES)/map_panel/map$$map || exit 1; done
+
 test: $(DEV_STAMP)
 	$(PY) -m pytest
 
@@ -35,6 +56,7 @@ lint: $(DEV_STAMP)
 
 bench: $(RUNTIME_STAMP)
 	$(PY) bench/p1_scaling.py
+	$(PY) bench/p2_env_throughput.py
 
 clean:
 	rm -rf $(VENV)

@@ -154,7 +154,12 @@ def run_experiments(cfg: TrainConfig) -> list[dict[str, Any]]:
             source = models_dir / f"{run_name(mode, best['seed'])}_agent_{agent}.pt"
             with temporary_path_for(models_dir / f"{mode}_agent_{agent}.pt") as temporary:
                 shutil.copyfile(source, temporary)
-    plot_training_curves(logs_dir, cfg.run_modes(), cfg.run_seeds())
+    title = (
+        f"Training progress on map seed {cfg.map_seed}"
+        + (f" (reward {cfg.reward_mode})" if cfg.reward_mode != "arrival" else "")
+        + (", untrained messages" if cfg.comm_learning == "none" else "")
+    )
+    plot_training_curves(logs_dir, cfg.run_modes(), cfg.run_seeds(), title)
     return finals
 
 
@@ -214,7 +219,7 @@ def _print_progress(
     print(line.ljust(140), end="", file=sys.stderr, flush=True)
 
 
-def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int]) -> Path:
+def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], title: str) -> Path:
     """Evaluation return and success rate against env steps, mean over seeds, min–max band."""
     fig = Figure(figsize=(12, 4.4), layout="constrained")
     axes = fig.subplots(1, 2)
@@ -238,7 +243,7 @@ def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int]) -> 
         ax.grid(True, alpha=0.3)
     axes[1].set_ylim(0, 1)
     axes[0].legend(title=f"mode (mean of {len(seeds)} seeds, band min–max)")
-    fig.suptitle("Training progress on the default map")
+    fig.suptitle(title)
     path = logs_dir / "training_curves.png"
     with temporary_path_for(path) as temporary:
         fig.savefig(temporary, format="png", dpi=150)

@@ -22,7 +22,7 @@ class TrainConfig:
     """Everything that defines a training run (one mode, one seed) or a batch of them."""
 
     mode: str = "all"
-    """ablation: independent (patch only), comm (+ message), full (+ distance) or all"""
+    """independent (patch only), comm (+ message), full (+ distance), all, or a list: comm,full"""
     seed: int = 641
     """first training seed; runs use seed, seed + 1, ... unless --seeds is given"""
     num_seeds: int = 5
@@ -46,7 +46,9 @@ class TrainConfig:
     batch_size: int = 256
     """transitions per gradient update"""
     lr: float = 5e-4
-    """Adam learning rate"""
+    """Adam learning rate at the start"""
+    lr_end_factor: float = 1.0
+    """final learning rate as a fraction of lr, reached linearly at the end of the run"""
     gamma: float = 0.99
     """discount factor"""
     epsilon_start: float = 1.0
@@ -78,7 +80,9 @@ class TrainConfig:
     eval_interval: int = 20_000
     """environment steps between evaluations on the fixed evaluation episodes"""
     eval_episodes: int = 200
-    """episodes of each periodic evaluation"""
+    """episodes of each periodic evaluation (fixed validation episodes)"""
+    keep_best: bool = True
+    """end with the weights that scored best in the periodic evaluations, not the last ones"""
     final_eval_episodes: int = 1000
     """episodes of the final evaluation that picks the best seed per mode"""
     save_freq: int = 0
@@ -92,12 +96,13 @@ class TrainConfig:
         return list(self.seeds) if self.seeds else [self.seed + i for i in range(self.num_seeds)]
 
     def run_modes(self) -> list[str]:
-        return list(MODES) if self.mode == "all" else [self.mode]
+        return list(MODES) if self.mode == "all" else self.mode.split(",")
 
     def validate(self) -> TrainConfig:
         """Raise ValueError naming the first invalid setting; return self."""
         checks = [
-            (self.mode in (*MODES, "all"), f"mode must be one of {(*MODES, 'all')}"),
+            (self.mode == "all" or set(self.mode.split(",")) <= set(MODES),
+             f"mode must be all or a comma-separated list of {MODES}"),
             (
                 self.reward_mode in ("arrival", "per_step"),
                 "reward_mode must be arrival or per_step",

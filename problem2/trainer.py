@@ -31,7 +31,8 @@ from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
 from train_config import TrainConfig
 
 EVAL_EPSILON = 0.05  # evaluation is reported greedy and at this exploration rate
-EVAL_SEED = 7_000_000  # fixed evaluation episodes, disjoint from the training streams
+EVAL_SEED = 7_000_000  # fixed test episodes of the final evaluation
+VALIDATION_SEED = 6_000_000  # other fixed episodes, for the periodic evaluations during training
 _TORCH_MASKS: dict[str, torch.Tensor] = {}
 
 
@@ -114,6 +115,8 @@ class MultiAgentTrainer:
         self.recent_successes: deque[bool] = deque(maxlen=100)
         self.log: list[dict[str, Any]] = []
         self._losses: list[float] = []
+        self.best_score, self.best_env_steps = -1.0, 0
+        self._best_weights = self.online.flat.detach().clone()
         self._mean_qs: list[float] = []
 
     # ------------------------------------------------------------------ networks
@@ -162,16 +165,23 @@ class MultiAgentTrainer:
         return lambda obs, positions: self._act(obs, epsilon, rng, noisy_messages=False)
 
     # ------------------------------------------------------------------ experience
+    def _progress(self) -> float:
+        """Fraction of the training budget spent, in [0, 1]."""
+        cfg = self.cfg
+        spent = self.episodes / cfg.num_episodes if cfg.num_episodes > 0 else (
+            self.env_steps / cfg.total_steps)
+        return min(1.0, spent)
+
     def epsilon(self) -> float:
         """Linear from epsilon_start to epsilon_end over the first epsilon_decay of the run."""
         cfg = self.cfg
-        progress = (
-            self.episodes / cfg.num_episodes
-            if cfg.num_episodes > 0
-            else self.env_steps / cfg.total_steps
-        )
-        fraction = min(1.0, progress / cfg.epsilon_decay)
+        fraction = min(1.0, self._progress() / cfg.epsilon_decay)
         return cfg.epsilon_start + fraction * (cfg.epsilon_end - cfg.epsilon_start)
+
+    def learning_rate(self) -> float:
+        """Linear from lr to lr * lr_end_factor over the run."""
+        factor = 1.0 + self._progress() * (self.cfg.lr_end_factor - 1.0)
+        return self.cfg.lr * factor
 
     def _collect_step(self, rollout: Rollout) -> tuple[np.ndarray, np.ndarray]:
         """One step of every copy; store the transitions. Returns (returns, successes) of
@@ -224,6 +234,8 @@ class MultiAgentTrainer:
         batch, weights, indices = self.buffer.sample_batch(batch_size)
         per_agent, td_errors, q_taken = self.td_losses(batch, weights)
         loss = per_agent.sum()  # the assignment's L = L_A + L_B
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.learning_rate()
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(self.online.parameters(), self.cfg.max_grad_norm)
@@ -309,10 +321,12 @@ class MultiAgentTrainer:
             if len(returns):
                 return float(returns[0]), bool(successes[0])
 
-    def evaluate(self, num_episodes: int = 10, epsilon: float = 0.0) -> tuple[float, float]:
-        """(mean reward, success rate) over fixed evaluation episodes."""
+    def evaluate(
+        self, num_episodes: int = 10, epsilon: float = 0.0, seed: int = EVAL_SEED
+    ) -> tuple[float, float]:
+        """(mean reward, success rate) over fixed episodes (the test episodes by default)."""
         env = self._make_env(min(num_episodes, 500), None)
-        summary = evaluate_policy(env, self.policy(epsilon), num_episodes, seed=EVAL_SEED)
+        summary = evaluate_policy(env, self.policy(epsilon), num_episodes, seed=seed)
         return summary["mean_return"], summary["success_rate"]
 
     def _done(self) -> bool:
@@ -322,8 +336,14 @@ class MultiAgentTrainer:
         return self.env_steps >= cfg.total_steps
 
     def _log_row(self) -> dict[str, Any]:
-        greedy_return, greedy_success = self.evaluate(self.cfg.eval_episodes, 0.0)
-        eps_return, eps_success = self.evaluate(self.cfg.eval_episodes, EVAL_EPSILON)
+        """Evaluate on the validation episodes, remember the best weights, log a row."""
+        episodes = self.cfg.eval_episodes
+        greedy_return, greedy_success = self.evaluate(episodes, 0.0, VALIDATION_SEED)
+        eps_return, eps_success = self.evaluate(episodes, EVAL_EPSILON, VALIDATION_SEED)
+        score = (greedy_success + eps_success) / 2
+        if score > self.best_score:
+            self.best_score, self.best_env_steps = score, self.env_steps
+            self._best_weights = self.online.flat.detach().clone()
         row = {
             "env_steps": self.env_steps,
             "episodes": self.episodes,
@@ -360,6 +380,9 @@ class MultiAgentTrainer:
         row = self._log_row()
         if progress:
             progress(row)
+        if self.cfg.keep_best:
+            with torch.no_grad():
+                self.online.flat.copy_(self._best_weights)
         return self.log
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import json
 import warnings
 from pathlib import Path
@@ -127,12 +126,13 @@ def test_starter_flags_and_defaults() -> None:
     )
     assert (dashed.num_episodes, dashed.batch_size, dashed.epsilon_decay) == (7, 8, 0.3)
     assert dashed.run_seeds() == [1, 2] and dashed.dueling and dashed.grid_size == 6
+    assert parse_config(["--mode", "comm,full"]).run_modes() == ["comm", "full"]
 
 
 @pytest.mark.parametrize(
     ("flags", "message"),
     [
-        (["--mode", "telepathy"], "mode must be one of"),
+        (["--mode", "telepathy"], "mode must be all or a comma-separated list"),
         (["--gamma", "1.0"], "gamma"),
         (["--comm_learning", "maybe"], "comm_learning"),
         (["--epsilon_end", "0.5", "--epsilon_start", "0.1"], "epsilon_end"),
@@ -212,8 +212,8 @@ def test_smoke_run_writes_every_output(smoke_run: Path) -> None:
         for agent in "AB":
             assert (models / f"{mode}_seed641_agent_{agent}.pt").is_file()
             assert (models / f"{mode}_agent_{agent}.pt").is_file()
-        rows = list(csv.DictReader(open(logs / f"{mode}_seed641.csv")))
-        assert int(rows[-1]["env_steps"]) >= 1536
+        rows = experiments.read_csv(logs / f"{mode}_seed641.csv")
+        assert rows[-1]["env_steps"] >= 1536
         assert {"loss", "mean_q", "eval_success_greedy", "eval_success_eps"} <= set(rows[0])
         final = json.loads((logs / f"{mode}_seed641_final.json").read_text())
         assert final["eps"]["episodes"] == 32
