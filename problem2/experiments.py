@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import csv
 import io
-import math
 import multiprocessing as mp
 import queue
 import shutil
@@ -165,58 +164,67 @@ def run_experiments(cfg: TrainConfig) -> list[dict[str, Any]]:
 
 def _run_parallel(cfg: TrainConfig, jobs: list[tuple[str, int]]) -> list[dict[str, Any]]:
     """Run ``jobs`` in a process pool, printing one progress line for the whole batch."""
-    total_steps = cfg.total_steps * len(jobs)
+    progress = ProgressLine(len(jobs), cfg.total_steps)
     if cfg.workers <= 1 or len(jobs) == 1:
-        return [train_one(cfg, mode, seed) for mode, seed in jobs]
+        finals = []
+        for mode, seed in jobs:
+            finals.append(train_one(cfg, mode, seed, progress))
+            progress.runs_done += 1
+        progress.close()
+        return finals
     context = mp.get_context("spawn")  # fresh interpreters: no inherited torch thread state
-    manager = context.Manager()
-    progress_queue = manager.Queue()
-    status: dict[str, tuple[dict, float]] = {}
-    start = time.perf_counter()
-    with context.Pool(min(cfg.workers, len(jobs))) as pool:
+    with context.Manager() as manager, context.Pool(min(cfg.workers, len(jobs))) as pool:
+        progress_queue = manager.Queue()
         pending = [
             pool.apply_async(train_one, (cfg, mode, seed, progress_queue)) for mode, seed in jobs
         ]
         while not all(p.ready() for p in pending):
+            progress.runs_done = sum(p.ready() for p in pending)
             try:
-                name, row, _ = progress_queue.get(timeout=1.0)
-                status[name] = (row, time.perf_counter())
+                progress.put(progress_queue.get(timeout=1.0))
             except queue.Empty:
-                pass
-            _print_progress(
-                status,
-                len(jobs),
-                sum(p.ready() for p in pending),
-                total_steps,
-                start,
-                cfg.total_steps,
-            )
+                progress.show()
         finals = [p.get() for p in pending]
-    manager.shutdown()
-    print(file=sys.stderr)
+    progress.close()
     return finals
 
 
-def _print_progress(
-    status: dict, n_jobs: int, n_done: int, total_steps: int, start: float, steps_per_run: int
-) -> None:
-    done_steps = sum(min(row["env_steps"], steps_per_run) for row, _ in status.values())
-    elapsed = time.perf_counter() - start
-    rate = done_steps / elapsed if elapsed > 0 else 0.0
-    eta = (total_steps - done_steps) / rate if rate > 0 else math.nan
-    latest = max(status.items(), key=lambda item: item[1][1], default=None)
-    latest_text = ""
-    if latest:
-        name, (row, _) = latest
-        latest_text = (
-            f" | {name} ε {row['epsilon']:.2f} success ε=0.05 "
-            f"{row['eval_success_eps']:.2f} greedy {row['eval_success_greedy']:.2f}"
+class ProgressLine:
+    """One terminal line for a batch of runs: runs finished, env steps, speed, ETA and the
+    latest evaluation. ``put`` takes the ``(run name, log row, seconds)`` the runs report."""
+
+    def __init__(self, n_runs: int, steps_per_run: int) -> None:
+        self.n_runs, self.steps_per_run, self.runs_done = n_runs, steps_per_run, 0
+        self.start = time.perf_counter()
+        self.rows: dict[str, dict[str, Any]] = {}
+        self.latest = ""
+
+    def put(self, item: tuple[str, dict[str, Any], float]) -> None:
+        self.latest, row, _ = item
+        self.rows[self.latest] = row
+        self.show()
+
+    def show(self) -> None:
+        total = self.n_runs * self.steps_per_run
+        done = sum(min(row["env_steps"], self.steps_per_run) for row in self.rows.values())
+        elapsed = time.perf_counter() - self.start
+        rate = done / elapsed if elapsed > 0 else 0.0
+        eta = f"{(total - done) / rate / 60:4.1f} min" if rate > 0 else "  ?"
+        line = (
+            f"\r[{self.runs_done}/{self.n_runs} runs] {done:,}/{total:,} env steps  "
+            f"{rate:,.0f} steps/s  ETA {eta}"
         )
-    line = (
-        f"\r[{n_done}/{n_jobs} runs] {done_steps:,}/{total_steps:,} env steps  "
-        f"{rate:,.0f} steps/s  ETA {eta / 60:4.1f} min{latest_text}"
-    )
-    print(line.ljust(140), end="", file=sys.stderr, flush=True)
+        if self.latest:
+            row = self.rows[self.latest]
+            line += (
+                f" | {self.latest} ε {row['epsilon']:.2f}  success ε=0.05 "
+                f"{row['eval_success_eps']:.2f} greedy {row['eval_success_greedy']:.2f}"
+            )
+        print(line.ljust(150), end="", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        self.show()
+        print(file=sys.stderr)
 
 
 def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], title: str) -> Path:

@@ -37,17 +37,17 @@ class TrainConfig:
     """episode time limit (a cut-off, not a terminal state: the TD target bootstraps through it)"""
     reward_mode: str = "arrival"
     """arrival (+2 once per agent on first arrival) or per_step (the literal +2 every step)"""
-    total_steps: int = 400_000
+    total_steps: int = 200_000
     """environment steps per run, summed over the parallel environments"""
     num_episodes: int = 0
     """if positive, train for this many finished episodes instead of --total_steps"""
-    num_envs: int = 32
+    num_envs: int = 64
     """parallel environments that collect experience"""
     batch_size: int = 256
     """transitions per gradient update"""
     lr: float = 5e-4
     """Adam learning rate at the start"""
-    lr_end_factor: float = 1.0
+    lr_end_factor: float = 0.1
     """final learning rate as a fraction of lr, reached linearly at the end of the run"""
     gamma: float = 0.99
     """discount factor"""
@@ -77,7 +77,7 @@ class TrainConfig:
     """use the dueling architecture Q = V + (A - mean A)"""
     prioritized: bool = False
     """use proportional prioritised replay"""
-    eval_interval: int = 20_000
+    eval_interval: int = 10_000
     """environment steps between evaluations on the fixed evaluation episodes"""
     eval_episodes: int = 200
     """episodes of each periodic evaluation (fixed validation episodes)"""
