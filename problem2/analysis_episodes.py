@@ -1,0 +1,201 @@
+"""Running trained policies for Problem 2's evaluation: greedy and ε-greedy policies from
+two TorchScript models, the message perturbations of the causal test, per-episode
+summaries and the classification of failed episodes.
+
+Every policy here has the ``baselines.PolicyFn`` signature, so random, oracle and trained
+policies all run through :func:`baselines.run_episodes`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from baselines import EpisodeResults, PolicyFn, run_episodes, summarize
+from models import MESSAGE_INDEX
+from multi_agent_env import NUM_ACTIONS, VectorMultiAgentEnv
+
+EVAL_SEED = 7_000_000  # the test episodes (the trainer's final evaluation uses the same)
+MAX_BATCH = 5_000  # episodes stepped together; more run in rounds
+MESSAGE_CONDITIONS = ("real", "shuffled", "zeroed")
+FAILURE_KINDS = ("swapping", "parked", "looping", "other")
+FAILURE_WINDOW = 10  # the last steps of a failed episode that its classification looks at
+MAX_LOOP_PERIOD = 4
+SWAP_RADIUS = 2  # Manhattan distance from the target within which a swap counts
+
+
+@dataclass(frozen=True)
+class EvaluationSetting:
+    """The map and episode rules an evaluation runs on."""
+
+    grid: np.ndarray  # (H, W) int: 0 free, 1 obstacle, 2 target
+    reward_mode: str = "arrival"
+    max_steps: int = 50
+    obs_window: int = 3
+
+    def make_env(self, num_episodes: int) -> VectorMultiAgentEnv:
+        """A vectorised environment that runs ``num_episodes`` in as few rounds as allowed
+        (one round up to ``MAX_BATCH``, so every policy sees the same start cells)."""
+        return VectorMultiAgentEnv(
+            min(num_episodes, MAX_BATCH),
+            grid=self.grid,
+            obs_window=self.obs_window,
+            max_steps=self.max_steps,
+            reward_mode=self.reward_mode,
+        )
+
+    @property
+    def target(self) -> tuple[int, int]:
+        row, col = np.argwhere(np.asarray(self.grid) == 2)[0]
+        return int(row), int(col)
+
+
+def model_policy(model_A: torch.nn.Module, model_B: torch.nn.Module) -> PolicyFn:
+    """Greedy actions and messages of two models that map raw observations [B, 11] to
+    (Q-values [B, 5], message [B, 1]); each model is called once per step on the batch."""
+
+    def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        with torch.inference_mode():
+            q_a, message_a = model_A(torch.from_numpy(np.ascontiguousarray(obs[:, 0])))
+            q_b, message_b = model_B(torch.from_numpy(np.ascontiguousarray(obs[:, 1])))
+        actions = torch.stack((q_a.argmax(dim=1), q_b.argmax(dim=1)), dim=1).numpy()
+        return actions, torch.cat((message_a, message_b), dim=1).numpy()
+
+    return act
+
+
+def with_exploration(policy_fn: PolicyFn, epsilon: float, seed: int = EVAL_SEED) -> PolicyFn:
+    """ε-greedy around ``policy_fn``: each agent's action is replaced by a uniform random one
+    with probability ``epsilon`` (its message is kept). Seeded; it draws the same numbers
+    in the same order as the trainer's evaluation policy."""
+    if not 0 <= epsilon <= 1:
+        raise ValueError(f"epsilon must lie in [0, 1], got {epsilon}")
+    rng = np.random.default_rng(seed)
+
+    def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        actions, messages = policy_fn(obs, positions)
+        explore = rng.random(actions.shape) < epsilon
+        random_actions = rng.integers(0, NUM_ACTIONS, actions.shape)
+        return np.where(explore, random_actions, actions), messages
+
+    return act
+
+
+def perturb_messages(
+    policy_fn: PolicyFn, env: VectorMultiAgentEnv, condition: str, seed: int = EVAL_SEED + 1
+) -> PolicyFn:
+    """Wrap ``policy_fn`` so that it receives a changed incoming message (element 9) and
+    nothing else changed; ``env`` must be the environment :func:`baselines.run_episodes`
+    steps, which runs all copies in step with each other.
+
+    * ``"shuffled"``: at each step, every running episode receives, per agent, the message
+      that arrived at the same step in another running episode (a random cyclic
+      permutation among them), so the messages at each step keep their multiset.
+    * ``"zeroed"``: the message is set to 0 (seen otherwise only at an episode's start).
+    * ``"real"``: ``policy_fn`` itself.
+
+    The running episodes are the copies at the round's current step: a copy that finished
+    was reset and has taken fewer steps since.
+    """
+    if condition not in MESSAGE_CONDITIONS:
+        raise ValueError(f"unknown message condition {condition!r}; use {MESSAGE_CONDITIONS}")
+    if condition == "real":
+        return policy_fn
+    rng = np.random.default_rng(seed)
+
+    def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        changed = obs.copy()
+        if condition == "zeroed":
+            changed[:, :, MESSAGE_INDEX] = 0.0
+            return policy_fn(changed, positions)
+        steps = env.steps
+        running = np.flatnonzero(steps == steps.max())
+        for agent in (0, 1):
+            order = running[rng.permutation(running.size)]
+            donors = np.roll(order, -1)  # a cycle: each episode receives another's message
+            changed[order, agent, MESSAGE_INDEX] = obs[donors, agent, MESSAGE_INDEX]
+        return policy_fn(changed, positions)
+
+    return act
+
+
+def evaluate_models(
+    setting: EvaluationSetting,
+    model_A: torch.nn.Module,
+    model_B: torch.nn.Module,
+    num_episodes: int,
+    epsilon: float = 0.0,
+    message: str = "real",
+    seed: int = EVAL_SEED,
+    record: bool = True,
+) -> EpisodeResults:
+    """Run the two models on ``num_episodes`` fixed test episodes (start cells from
+    ``seed``), with exploration ``epsilon`` and the incoming message ``message``."""
+    env = setting.make_env(num_episodes)
+    policy = perturb_messages(model_policy(model_A, model_B), env, message, seed + 1)
+    return run_episodes(env, with_exploration(policy, epsilon, seed), num_episodes, seed, record)
+
+
+def classify_failures(results: EpisodeResults, target: tuple[int, int]) -> np.ndarray:
+    """Failure kind of each episode (E,) as an index into ``FAILURE_KINDS``; −1 on success.
+
+    A failed episode ran the full ``T`` steps; its last ``FAILURE_WINDOW`` steps (W) are
+    examined and the first matching kind, in this order, is its kind:
+
+    * ``swapping``: at least two of the last W steps are swaps — each agent moves into the
+      cell the other just left — between cells within Manhattan distance ``SWAP_RADIUS``
+      of the target (the two agents keep trading places next to it);
+    * ``parked``: one agent stands on the target at each of the last W + 1 positions and
+      the other never stood on it in the whole episode;
+    * ``looping``: the pair of positions over the last W + 1 positions repeats with a
+      period of at most ``MAX_LOOP_PERIOD`` steps (period 1: both stand still);
+    * ``other``: none of these (e.g. still wandering when time ran out).
+
+    Needs ``results`` recorded (``record=True``).
+    """
+    if results.trajectories is None:
+        raise ValueError("classify_failures needs recorded episodes (record=True)")
+    positions = results.trajectories["positions"]  # (E, T + 1, 2, 2)
+    window = positions[:, -(FAILURE_WINDOW + 1) :]  # (E, W + 1, 2, 2)
+    target = np.asarray(target)
+    before, after = window[:, :-1], window[:, 1:]
+    swaps = (
+        np.all(after[:, :, 0] == before[:, :, 1], axis=-1)
+        & np.all(after[:, :, 1] == before[:, :, 0], axis=-1)
+        & np.any(before[:, :, 0] != before[:, :, 1], axis=-1)
+        & np.all(np.abs(before - target).sum(axis=-1) <= SWAP_RADIUS, axis=-1)
+    )  # (E, W)
+    on_target = np.all(window == target, axis=-1)  # (E, W + 1, 2)
+    ever_on_target = np.all(positions == target, axis=-1).any(axis=1)  # (E, 2)
+    parked = (on_target.all(axis=1) & ~ever_on_target[:, ::-1]).any(axis=1)
+    looping = np.zeros(len(positions), dtype=bool)
+    for period in range(1, MAX_LOOP_PERIOD + 1):
+        looping |= np.all(window[:, period:] == window[:, :-period], axis=(1, 2, 3))
+    kinds = np.select(
+        [swaps.sum(axis=1) >= 2, parked, looping], [0, 1, 2], default=FAILURE_KINDS.index("other")
+    )
+    return np.where(results.successes, -1, kinds)
+
+
+def failure_shares(results: EpisodeResults, target: tuple[int, int]) -> dict[str, float | int]:
+    """Number of failed episodes and the share of each kind among them (0 if none failed)."""
+    kinds = classify_failures(results, target)
+    failed = kinds[kinds >= 0]
+    shares: dict[str, float | int] = {"failed_episodes": int(failed.size)}
+    for index, kind in enumerate(FAILURE_KINDS):
+        shares[kind] = float(np.mean(failed == index)) if failed.size else 0.0
+    return shares
+
+
+def episode_summary(
+    results: EpisodeResults, target: tuple[int, int], epsilon: float | None = None
+) -> dict:
+    """:func:`baselines.summarize` plus the exploration rate and, if the episodes were
+    recorded, the failure shares."""
+    summary: dict = summarize(results)
+    if epsilon is not None:
+        summary["epsilon"] = float(epsilon)
+    if results.trajectories is not None:
+        summary["failures"] = failure_shares(results, target)
+    return summary

@@ -1,0 +1,336 @@
+"""What ``python evaluate.py`` does: evaluate every trained (mode, seed) of every experiment
+found, aggregate over seeds, test the message causally, test the main models on unseen
+maps, and write the JSON files, the Markdown table and the figures.
+
+Aggregates over training seeds are ``analysis_stats.seed_statistics`` dicts: ``mean``,
+``ci95`` (percentile bootstrap over seeds, 10 000 resamples), ``iqm``, ``n``, ``per_seed``.
+Within one seed the causal differences carry an episode-level paired bootstrap CI.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from _atomic import write_json_atomic
+from analysis_episodes import (
+    EVAL_SEED,
+    FAILURE_KINDS,
+    FAILURE_WINDOW,
+    MAX_LOOP_PERIOD,
+    SWAP_RADIUS,
+    episode_summary,
+)
+from analysis_evaluator import GENERALIZATION_MAP_SEEDS, MultiAgentEvaluator
+from analysis_messages import (
+    FEATURE_DESCRIPTIONS,
+    mean_message_per_cell,
+    message_correlations,
+    message_distribution,
+)
+from analysis_plots import plot_message_heatmap, plot_trajectories, save_episode_gif
+from analysis_report import create_evaluation_report
+from analysis_runs import Experiment, best_seed, load_model_pair
+from analysis_stats import BOOTSTRAP_RESAMPLES, seed_statistics
+from analysis_traces import representative_traces
+from baselines import EpisodeResults, oracle_policy, random_policy, summarize
+from grid_maps import generate_map
+from multi_agent_env import MultiAgentEnv
+
+CONDITIONS = ("greedy", "eps")
+FAILURE_DEFINITIONS = {
+    "window": f"the last {FAILURE_WINDOW} steps of a failed (timed-out) episode",
+    "swapping": f"at least 2 steps of the window in which the agents exchange cells, both "
+    f"cells within Manhattan distance {SWAP_RADIUS} of the target",
+    "parked": "one agent on the target throughout the window, the other never on it in the episode",
+    "looping": f"the pair of positions repeats over the window with period <= "
+    f"{MAX_LOOP_PERIOD} (period 1: both stand still)",
+    "other": "none of the above; kinds are checked in the order listed",
+}
+MESSAGE_TEST = {
+    "real": "the partner's message as sent",
+    "shuffled": "at each step, the message that arrived at the same step in another running "
+    "episode (random cyclic pairing; the multiset of messages per step is kept)",
+    "zeroed": "0, as at an episode's start (out of distribution elsewhere)",
+}
+
+
+@dataclass
+class ExperimentOutcome:
+    """Everything evaluated for one experiment; ``runs`` keeps the recorded episodes of each
+    mode's best seed, for the figures."""
+
+    performance: dict
+    communication: dict
+    runs: dict[str, dict[str, EpisodeResults]] = field(default_factory=dict)
+
+
+def _evaluator(
+    experiment: Experiment, epsilon: float, mode: str | None = None, seed: int | None = None, **kw
+) -> MultiAgentEvaluator:
+    settings = experiment.settings
+    env = MultiAgentEnv(
+        grid=experiment.grid,
+        max_steps=int(settings["max_steps"]),
+        reward_mode=settings["reward_mode"],
+    )
+    models = load_model_pair(experiment.models_dir, mode, seed) if mode else (None, None)
+    return MultiAgentEvaluator(env, *models, epsilon=epsilon, **kw)
+
+
+def aggregate(summaries: list[dict]) -> dict[str, Any]:
+    """Seed statistics of success, steps, return and failure shares (one summary a seed)."""
+    result: dict[str, Any] = {
+        "epsilon": summaries[0]["epsilon"],
+        "episodes_per_seed": summaries[0]["episodes"],
+    }
+    for key in ("success_rate", "mean_steps_to_success", "mean_return"):
+        result[key] = seed_statistics([s[key] for s in summaries])
+    result["failures"] = {
+        kind: seed_statistics([s["failures"][kind] for s in summaries]) for kind in FAILURE_KINDS
+    }
+    return result
+
+
+def message_verdict(causal: dict[str, dict], epsilon: float) -> tuple[bool, str]:
+    """(used, plain-language verdict) from the real − shuffled difference over seeds; with
+    one seed its episode-level CI is used instead."""
+    parts, used = [], False
+    for name in CONDITIONS:
+        diff = causal[name]["real_minus_shuffled"]
+        low, high = diff["ci95"] if diff["n"] > 1 else diff["episode_ci95"]
+        label = "greedy" if name == "greedy" else f"ε = {epsilon}"
+        span = f"{diff['mean']:+.3f} (95 % CI [{low:+.3f}, {high:+.3f}])"
+        if low > 0:
+            parts.append(f"{label}: shuffling lowers success by {span} — the message is used")
+            used = used or name == "eps"
+        elif high < 0:
+            parts.append(f"{label}: shuffling raises success ({span}) — the message hurts")
+        else:
+            parts.append(f"{label}: real − shuffled = {span} includes 0")
+    head = (
+        "The message carries information the partner uses."
+        if used
+        else "No evidence that the message carries anything the partner uses."
+    )
+    return used, f"{head} " + "; ".join(parts) + "."
+
+
+def aggregate_causal(per_seed: list[dict], epsilon: float) -> dict[str, Any]:
+    """Seed statistics of each message condition's success and of the differences."""
+    causal: dict[str, Any] = {}
+    for name in CONDITIONS:
+        tests = [seed_test[name] for seed_test in per_seed]
+        causal[name] = {m: seed_statistics([t[m] for t in tests]) for m in MESSAGE_TEST}
+        for key in ("real_minus_shuffled", "real_minus_zeroed"):
+            causal[name][key] = seed_statistics([t[key]["mean"] for t in tests])
+            if len(tests) == 1:
+                causal[name][key]["episode_ci95"] = tests[0][key]["ci95"]
+    used, causal["verdict"] = message_verdict(causal, epsilon)
+    causal["message_used"] = used
+    return causal
+
+
+def evaluate_mode(
+    experiment: Experiment, mode: str, num_episodes: int, epsilon: float
+) -> tuple[dict, dict, dict[str, EpisodeResults]]:
+    """Performance and communication entries of one mode, and the best seed's episodes."""
+    per_seed_perf, per_seed_comm, seed_runs = {}, {}, {}
+    target = tuple(int(v) for v in np.argwhere(experiment.grid == 2)[0])
+    for seed in experiment.seeds[mode]:
+        evaluator = _evaluator(experiment, epsilon, mode, seed)
+        runs = evaluator.run_conditions(num_episodes)
+        per_seed_perf[str(seed)] = {
+            name: episode_summary(runs[name], target, evaluator.conditions[name])
+            for name in CONDITIONS
+        }
+        per_seed_comm[str(seed)] = {
+            "messages": message_distribution(runs["greedy"]),
+            "correlations": message_correlations(runs["greedy"], experiment.grid),
+        }
+        if mode != "independent":
+            causal = evaluator.causal_message_test(num_episodes, runs)
+            per_seed_comm[str(seed)]["causal"] = causal
+        seed_runs[seed] = runs
+    chosen = best_seed(experiment, mode)
+    if chosen is None:  # no best-pair files: take the best seed of this evaluation
+        chosen = max(seed_runs, key=lambda s: per_seed_perf[str(s)]["eps"]["success_rate"])
+    performance = {
+        "label": experiment.label(mode),
+        "seeds": experiment.seeds[mode],
+        "best_seed": chosen,
+        **{name: aggregate([p[name] for p in per_seed_perf.values()]) for name in CONDITIONS},
+        "per_seed": per_seed_perf,
+    }
+    communication: dict[str, Any] = {"label": experiment.label(mode), "per_seed": per_seed_comm}
+    if mode != "independent":
+        tests = [entry["causal"] for entry in per_seed_comm.values()]
+        communication["causal"] = aggregate_causal(tests, epsilon)
+    return performance, communication, seed_runs[chosen]
+
+
+def evaluate_experiment(
+    experiment: Experiment, num_episodes: int, epsilon: float
+) -> ExperimentOutcome:
+    """Every mode and seed of ``experiment`` beside the random and oracle policies."""
+    baselines = {}
+    for name, factory in (
+        ("random", lambda grid: random_policy(EVAL_SEED)),
+        ("oracle", oracle_policy),
+    ):
+        evaluator = _evaluator(experiment, epsilon, policy_factory=factory)
+        results = evaluator.run(num_episodes)
+        baselines[name] = episode_summary(results, evaluator.setting.target, 0.0)
+    settings = experiment.settings
+    info = {
+        key: settings.get(key) for key in ("map_seed", "reward_mode", "comm_learning", "max_steps")
+    }
+    info |= {"models_dir": str(experiment.models_dir), "grid": experiment.grid.tolist()}
+    info["target"] = [int(v) for v in np.argwhere(experiment.grid == 2)[0]]
+    outcome = ExperimentOutcome(
+        performance={**info, "baselines": baselines, "modes": {}},
+        communication={"map_seed": info["map_seed"], "modes": {}},
+    )
+    for mode in experiment.seeds:
+        performance, communication, runs = evaluate_mode(experiment, mode, num_episodes, epsilon)
+        outcome.performance["modes"][mode] = performance
+        outcome.communication["modes"][mode] = communication
+        outcome.runs[mode] = runs
+    return outcome
+
+
+def evaluate_generalization(experiment: Experiment, num_episodes: int, epsilon: float) -> dict:
+    """Every model pair of ``experiment`` on map seeds 0–9, beside the oracle and the
+    random policy on each map; per map and mode, seed statistics of the success rate."""
+    size = experiment.grid.shape
+    maps: dict[str, dict] = {}
+    for map_seed in GENERALIZATION_MAP_SEEDS:
+        grid = generate_map(size, map_seed)
+        entry: dict[str, Any] = {"target": [int(v) for v in np.argwhere(grid == 2)[0]]}
+        for name, factory in (
+            ("random", lambda g: random_policy(EVAL_SEED)),
+            ("oracle", oracle_policy),
+        ):
+            evaluator = MultiAgentEvaluator(
+                MultiAgentEnv(grid=grid, max_steps=int(experiment.settings["max_steps"])),
+                policy_factory=factory,
+            )
+            entry[name] = summarize(evaluator.run(num_episodes, record=False))
+        entry["modes"] = {}
+        maps[str(map_seed)] = entry
+    summary: dict[str, dict] = {}
+    for mode, seeds in experiment.seeds.items():
+        per_seed = [
+            _evaluator(experiment, epsilon, mode, seed).test_generalization(
+                len(GENERALIZATION_MAP_SEEDS), num_episodes, oracle=False
+            )
+            for seed in seeds
+        ]
+        for map_seed, entry in maps.items():
+            entry["modes"][mode] = {
+                name: seed_statistics([run["maps"][map_seed][name] for run in per_seed])
+                for name in CONDITIONS
+            }
+        summary[mode] = {
+            name: seed_statistics([run[f"mean_{name}"] for run in per_seed]) for name in CONDITIONS
+        }
+    return {
+        "trained_map_seed": experiment.settings["map_seed"],
+        "episodes_per_map": num_episodes,
+        "epsilon": epsilon,
+        "map_seeds": list(GENERALIZATION_MAP_SEEDS),
+        "maps": maps,
+        "mean_over_maps": summary,
+    }
+
+
+def evaluate_all(
+    experiments: list[Experiment], args: argparse.Namespace
+) -> tuple[dict[str, Any], dict[str, ExperimentOutcome]]:
+    """Evaluate ``experiments`` (the main one first) with the options of ``args``
+    (``num_episodes``, ``epsilon``, ``generalization_episodes``); returns (results, outcomes)."""
+    protocol = {
+        "evaluation_seed": EVAL_SEED,
+        "episodes_per_seed": args.num_episodes,
+        "conditions": {"greedy": 0.0, "eps": args.epsilon},
+        "bootstrap_resamples": BOOTSTRAP_RESAMPLES,
+        "confidence": 0.95,
+        "success": "both agents on the target on the same step within max_steps",
+    }
+    outcomes, start = {}, time.perf_counter()
+    for experiment in experiments:
+        outcomes[experiment.name] = evaluate_experiment(experiment, args.num_episodes, args.epsilon)
+        print(f"evaluated {experiment.name} ({time.perf_counter() - start:.0f} s)")
+    results: dict[str, Any] = {
+        "performance": {
+            "protocol": protocol | {"failure_definitions": FAILURE_DEFINITIONS},
+            "experiments": {name: o.performance for name, o in outcomes.items()},
+        },
+        "communication": {
+            "protocol": protocol
+            | {"message_conditions": MESSAGE_TEST, "features": FEATURE_DESCRIPTIONS},
+            "experiments": {name: o.communication for name, o in outcomes.items()},
+        },
+    }
+    main = next((e for e in experiments if e.name == "main"), None)
+    if main is not None:
+        results["generalization"] = evaluate_generalization(
+            main, args.generalization_episodes, args.epsilon
+        )
+        print(f"evaluated generalisation ({time.perf_counter() - start:.0f} s)")
+    return results, outcomes
+
+
+def failure_analysis(performance: dict) -> dict[str, Any]:
+    """The failure shares of every experiment and mode (from ``performance``)."""
+    return {
+        "definitions": FAILURE_DEFINITIONS,
+        "experiments": {
+            name: {
+                mode: {c: entry[c]["failures"] for c in CONDITIONS}
+                | {"baselines": {b: v["failures"] for b, v in experiment["baselines"].items()}}
+                for mode, entry in experiment["modes"].items()
+            }
+            for name, experiment in performance["experiments"].items()
+        },
+    }
+
+
+def write_outputs(
+    results: dict[str, Any], outcomes: dict[str, ExperimentOutcome], output_dir: Path
+) -> list[Path]:
+    """Write the JSON files, ``comparison_table.md`` and the figures of the main experiment
+    (or the first one evaluated) to ``output_dir``; return the paths written."""
+    output_dir = Path(output_dir)
+    written = [
+        write_json_atomic(output_dir / "performance.json", results["performance"]),
+        write_json_atomic(output_dir / "communication_analysis.json", results["communication"]),
+        write_json_atomic(
+            output_dir / "failure_analysis.json", failure_analysis(results["performance"])
+        ),
+    ]
+    if "generalization" in results:
+        written.append(
+            write_json_atomic(output_dir / "generalization.json", results["generalization"])
+        )
+    written.append(create_evaluation_report(results, output_dir / "comparison_table.md"))
+    name, outcome = next(iter(outcomes.items()))
+    entry = results["performance"]["experiments"][name]
+    grid, target = np.array(entry["grid"]), tuple(entry["target"])
+    rows, heat = [], []
+    for mode, runs in outcome.runs.items():
+        label = f"{mode} (seed {entry['modes'][mode]['best_seed']})"
+        traces = representative_traces(runs, target)
+        rows.append((label, traces))
+        heat.append((label, mean_message_per_cell(runs["greedy"], grid.shape)))
+        shown = traces[0] or traces[1]
+        if shown is not None:
+            title = f"{mode}: {'success' if shown.success else 'failure'}"
+            written.append(save_episode_gif(shown, grid, output_dir / f"episode_{mode}.gif", title))
+    written.append(plot_trajectories(rows, grid, output_dir / "trajectories.png"))
+    written.append(plot_message_heatmap(heat, grid, output_dir / "comm_heatmap.png"))
+    return written

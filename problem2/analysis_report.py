@@ -1,0 +1,228 @@
+"""The Markdown comparison of Problem 2's evaluation (``comparison_table.md``), built from
+the results dict of ``analysis_pipeline.evaluate_all``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from _atomic import temporary_path_for
+
+FAILURE_COLUMNS = ("swapping", "parked", "looping", "other")
+
+
+def _stat(stat: dict | None, digits: int = 3) -> str:
+    """``mean [low, high]`` of a seed-statistics dict, ``–`` if empty."""
+    if not stat or stat.get("mean") is None:
+        return "–"
+    low, high = stat["ci95"]
+    return f"{stat['mean']:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
+
+
+def _per_seed(stat: dict) -> str:
+    return ", ".join("–" if v is None else f"{v:.2f}" for v in stat["per_seed"])
+
+
+def _number(value: float | None, digits: int = 2) -> str:
+    return "–" if value is None else f"{value:.{digits}f}"
+
+
+def _table(header: list[str], rows: list[list[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return lines + ["| " + " | ".join(row) + " |" for row in rows]
+
+
+def _mode_rows(experiment: dict, prefix: str = "") -> list[list[str]]:
+    rows = []
+    for entry in experiment["modes"].values():
+        greedy, eps = entry["greedy"], entry["eps"]
+        rows.append(
+            [
+                prefix + entry["label"],
+                _stat(greedy["success_rate"]),
+                f"{greedy['success_rate']['iqm']:.3f}",
+                _stat(eps["success_rate"]),
+                f"{eps['success_rate']['iqm']:.3f}",
+                f"{_per_seed(greedy['success_rate'])} / {_per_seed(eps['success_rate'])}",
+                _stat(eps["mean_steps_to_success"], 1),
+                _stat(eps["mean_return"], 2),
+            ]
+        )
+    return rows
+
+
+def _baseline_rows(experiment: dict, prefix: str = "") -> list[list[str]]:
+    rows = []
+    for name, summary in experiment["baselines"].items():
+        rate = f"{summary['success_rate']:.3f}"
+        steps, ret = _number(summary["mean_steps_to_success"], 1), _number(summary["mean_return"])
+        rows.append([prefix + name, rate, rate, rate, rate, "–", steps, ret])
+    return rows
+
+
+SUCCESS_HEADER = [
+    "policy",
+    "success greedy, mean [95 % CI]",
+    "IQM",
+    "success ε, mean [95 % CI]",
+    "IQM",
+    "per seed (greedy / ε)",
+    "steps to success (ε)",
+    "return (ε)",
+]
+
+
+def success_section(performance: dict) -> list[str]:
+    """Main map: every mode, the per_step and no_dial study rows, random and oracle."""
+    experiments = performance["experiments"]
+    protocol = performance["protocol"]
+    main = experiments.get("main") or next(iter(experiments.values()))
+    rows = _mode_rows(main)
+    for name in ("per_step", "no_dial"):
+        if name in experiments:
+            rows += _mode_rows(experiments[name])
+    rows += _baseline_rows(main)
+    return [
+        f"## Success on the training map (map seed {main['map_seed']}, target "
+        f"{tuple(main['target'])})",
+        "",
+        f"{protocol['episodes_per_seed']} fixed test episodes per trained seed (start cells "
+        f"from seed {protocol['evaluation_seed']}); ε = {protocol['conditions']['eps']}. "
+        "Mean over training seeds with a 95 % percentile bootstrap CI over seeds; IQM = "
+        "interquartile mean over seeds. Returns of `per_step` runs use their own reward.",
+        "",
+        *_table(SUCCESS_HEADER, rows),
+        "",
+    ]
+
+
+def panel_section(performance: dict) -> list[str]:
+    panel = {k: v for k, v in performance["experiments"].items() if k.startswith("map_panel/")}
+    if not panel:
+        return []
+    rows = []
+    for experiment in panel.values():
+        prefix = f"map {experiment['map_seed']} {tuple(experiment['target'])}: "
+        rows += _mode_rows(experiment, prefix) + _baseline_rows(experiment, prefix)
+    return [
+        "## Map panel (each mode trained and tested on the map)",
+        "",
+        *_table(SUCCESS_HEADER, rows),
+        "",
+    ]
+
+
+def failure_section(performance: dict) -> list[str]:
+    rows = []
+    for name, experiment in performance["experiments"].items():
+        for entry in experiment["modes"].values():
+            for condition in ("greedy", "eps"):
+                failures = entry[condition]["failures"]
+                failed = 1 - entry[condition]["success_rate"]["mean"]
+                shares = [_number(failures[kind]["mean"]) for kind in FAILURE_COLUMNS]
+                rows.append([name, entry["label"], condition, f"{failed:.3f}", *shares])
+    definitions = performance["protocol"]["failure_definitions"]
+    notes = [f"- **{kind}**: {text}" for kind, text in definitions.items()]
+    header = ["experiment", "mode", "condition", "failed", *FAILURE_COLUMNS]
+    return [
+        "## How episodes fail (share of failed episodes, mean over seeds)",
+        "",
+        *notes,
+        "",
+        *_table(header, rows),
+        "",
+    ]
+
+
+def message_section(communication: dict) -> list[str]:
+    rows, verdicts = [], []
+    for name, experiment in communication["experiments"].items():
+        for entry in experiment["modes"].values():
+            if "causal" not in entry:
+                continue
+            causal = entry["causal"]
+            for condition in ("greedy", "eps"):
+                test = causal[condition]
+                rows.append(
+                    [
+                        name,
+                        entry["label"],
+                        condition,
+                        _number(test["real"]["mean"], 3),
+                        _number(test["shuffled"]["mean"], 3),
+                        _number(test["zeroed"]["mean"], 3),
+                        _stat(test["real_minus_shuffled"]),
+                        _per_seed(test["real_minus_shuffled"]),
+                    ]
+                )
+            verdicts.append(f"- {name}, {entry['label']}: {causal['verdict']}")
+    if not rows:
+        return []
+    header = ["experiment", "mode", "condition", "real", "shuffled", "zeroed",
+              "real − shuffled [95 % CI]", "per seed"]  # fmt: skip
+    return [
+        "## Is the message used? (success with the real, a shuffled and a zeroed message)",
+        "",
+        *_table(header, rows),
+        "",
+        *verdicts,
+        "",
+    ]
+
+
+def generalization_section(generalization: dict | None) -> list[str]:
+    if not generalization:
+        return []
+    maps = generalization["maps"]
+    modes = list(next(iter(maps.values()))["modes"])
+    header = ["map seed", "target", "oracle (steps)", "random"]
+    header += [f"{mode} greedy / ε" for mode in modes]
+    rows = []
+    for map_seed, entry in maps.items():
+        oracle = entry["oracle"]
+        row = [map_seed, str(tuple(entry["target"]))]
+        row.append(f"{oracle['success_rate']:.2f} ({_number(oracle['mean_steps_to_success'], 1)})")
+        row.append(f"{entry['random']['success_rate']:.3f}")
+        for mode in modes:
+            stats = entry["modes"][mode]
+            row.append(f"{stats['greedy']['mean']:.3f} / {stats['eps']['mean']:.3f}")
+        rows.append(row)
+    means = generalization["mean_over_maps"]
+    rows.append(["mean", "", "", ""] + [
+        f"{_stat(means[m]['greedy'])} / {_stat(means[m]['eps'])}" for m in modes
+    ])  # fmt: skip
+    return [
+        f"## Generalisation: models trained on map {generalization['trained_map_seed']} on "
+        f"unseen map seeds 0–{len(maps) - 1}",
+        "",
+        f"{generalization['episodes_per_map']} episodes per model and map; mean over "
+        "training seeds.",
+        "",
+        *_table(header, rows),
+        "",
+    ]
+
+
+def format_report(results: dict[str, Any], brief: bool = False) -> str:
+    """Markdown of every section; ``brief``: the success table, the message verdicts and the
+    generalisation summary only (for the console)."""
+    performance = results["performance"]
+    sections = [success_section(performance)]
+    if not brief:
+        sections += [panel_section(performance), failure_section(performance)]
+    if "communication" in results:
+        sections.append(message_section(results["communication"]))
+    sections.append(generalization_section(results.get("generalization")))
+    title = [] if brief else ["# Problem 2: evaluation of the trained agents", ""]
+    return "\n".join(title + [line for section in sections for line in section])
+
+
+def create_evaluation_report(results: dict[str, Any], save_path: str | Path) -> Path:
+    """Write the Markdown comparison of ``results`` (keys ``performance`` and optionally
+    ``communication`` and ``generalization``, as ``python evaluate.py`` builds them) to
+    ``save_path`` atomically."""
+    if "performance" not in results:
+        raise ValueError("results must contain 'performance' (see analysis_pipeline.py)")
+    with temporary_path_for(save_path) as temporary:
+        temporary.write_text(format_report(results))
+    return Path(save_path)
