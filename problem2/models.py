@@ -8,6 +8,7 @@ Both networks follow the assignment's formula with one hidden layer:
 from __future__ import annotations
 
 import copy
+import io
 import warnings
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -137,8 +138,13 @@ def export_policy(
     if mask_tensor.numel() != input_dim:
         raise ValueError(f"mask has {mask_tensor.numel()} elements; the network takes {input_dim}")
     exported = copy.deepcopy(network).cpu().eval().requires_grad_(False)
-    with _torchscript_without_deprecation_warnings(), temporary_path_for(path) as temporary:
-        torch.jit.save(torch.jit.script(MaskedPolicy(exported, mask_tensor)), str(temporary))
+    # Saving to memory first keeps the archive's inner folder name fixed ("archive", not the
+    # temporary file's name), so the same weights always give byte-identical files.
+    buffer = io.BytesIO()
+    with _torchscript_without_deprecation_warnings():
+        torch.jit.save(torch.jit.script(MaskedPolicy(exported, mask_tensor)), buffer)
+    with temporary_path_for(path) as temporary:
+        temporary.write_bytes(buffer.getvalue())
     return Path(path)
 
 

@@ -250,13 +250,17 @@ def test_exported_models_reproduce_the_trainer_and_carry_their_mask(tmp_path: Pa
                 torch.testing.assert_close(q_changed, q_values)
 
 
-def test_same_seed_same_logs_in_parallel_and_in_sequence(tmp_path: Path) -> None:
+def test_same_seed_same_logs_and_models_in_parallel_and_in_sequence(tmp_path: Path) -> None:
     args = [*TINY, "--mode", "comm", "--seeds", "3", "4"]
     train.main([*args, "--workers", "2", "--output_dir", str(tmp_path / "a")])
     train.main([*args, "--workers", "1", "--output_dir", str(tmp_path / "b")])
     for seed in (3, 4):
-        name = f"training_logs/comm_seed{seed}.csv"
-        assert (tmp_path / "a" / name).read_text() == (tmp_path / "b" / name).read_text()
+        for name in (
+            f"training_logs/comm_seed{seed}.csv",
+            f"agent_models/comm_seed{seed}_agent_A.pt",
+            f"training_logs/comm_seed{seed}_final.json",
+        ):
+            assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
     logs = [(tmp_path / "a" / f"training_logs/comm_seed{s}.csv").read_text() for s in (3, 4)]
     assert logs[0] != logs[1]
 
