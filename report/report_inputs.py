@@ -115,4 +115,6 @@ class Results:
             table = self.csv(path) if match else None
             if table is not None and "env_steps" in table:
                 found.setdefault(match[1], []).append((int(match[2]), table))
-        return {m: [t for _, t in sorted(found[m], key=lambda p: p[0])] for m in MODES if m in found}
+        return {
+            m: [t for _, t in sorted(found[m], key=lambda p: p[0])] for m in MODES if m in found
+        }

@@ -14,7 +14,7 @@ between rows, repeating the header. Lengths are in inches, y measured down from 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache, lru_cache
 from pathlib import Path
 
 import matplotlib
@@ -38,8 +38,12 @@ WIDTH_SAFETY = 1.02  # the PDF backend's glyph widths differ slightly from Agg's
 HEADING_SIZES = {0: 20.0, 1: 15.0, 2: 12.0}
 KEEP_WITH_NEXT = 1.2  # a heading needs this much room below it, else it starts a page
 NOTE_COLOUR = "#9a3412"
-PDF_METADATA = {"Title": "Reinforcement learning assignment report", "Author": None,
-                "Creator": "report/build_report.py", "CreationDate": None, "ModDate": None}  # fmt: skip
+PDF_METADATA = {
+    "Title": "Reinforcement learning assignment report",
+    "Creator": "report/build_report.py",
+    "CreationDate": None,  # no timestamps: the same inputs give the same bytes
+    "ModDate": None,
+}
 
 
 # --------------------------------------------------------------------------- blocks
@@ -107,7 +111,7 @@ Block = Heading | Paragraph | Bullets | Figure | Table | Note | PageBreak
 _RENDERER = RendererAgg(10, 10, 720)  # 720 dpi: widths to 0.1 pt
 
 
-@lru_cache(maxsize=None)
+@cache
 def _font(size: float, style: str = "normal", weight: str = "normal") -> FontProperties:
     return FontProperties(family="DejaVu Sans", size=size, style=style, weight=weight)
 
@@ -307,6 +311,11 @@ def _figure(flow: _Flow, block: Figure) -> None:
         width = height / aspect
     caption = wrap(block.caption, TEXT_WIDTH, 8.5, "italic")
     total = height + 0.1 + len(caption) * line_height(8.5)
+    room = flow.bottom - flow.y
+    if total > room >= 0.7 * total:  # shrink a little rather than leave a gap
+        height -= total - room
+        width = height / aspect
+        total = room
     flow.ensure(total)
     if flow.y + total > flow.bottom:  # taller than a page even at the top: shrink
         height = flow.bottom - flow.y - 0.1 - len(caption) * line_height(8.5)
@@ -318,16 +327,50 @@ def _figure(flow: _Flow, block: Figure) -> None:
     flow.y += 0.14
 
 
+def column_widths(block: Table, weights: tuple[float, ...], pad: float) -> list[float]:
+    """Column widths in inches: proportional to ``weights``, but every column at least as
+    wide as its longest word (header bold), taking the room from the other columns."""
+    total = sum(weights)
+    widths = [TEXT_WIDTH * w / total for w in weights]
+    needed = []
+    for j, head in enumerate(block.header):
+        words = [(w, "bold") for w in head.split()]
+        words += [(w, "normal") for row in block.rows for w in row[j].split()]
+        needed.append(
+            max((text_width(w, block.size, weight=b) for w, b in words), default=0) + 2 * pad
+        )
+    for _ in range(len(widths)):
+        short = [j for j in range(len(widths)) if widths[j] < needed[j] - 1e-9]
+        if not short:
+            break
+        extra = sum(needed[j] - widths[j] for j in short)
+        donors = [j for j in range(len(widths)) if j not in short and widths[j] > needed[j]]
+        room = sum(widths[j] - needed[j] for j in donors)
+        if room <= 0:
+            break
+        take = min(1.0, extra / room)
+        for j in donors:
+            widths[j] -= (widths[j] - needed[j]) * take
+        for j in short:
+            widths[j] = min(needed[j], widths[j] + (needed[j] - widths[j]) * room / extra)
+    return widths
+
+
 def _table_rows(block: Table) -> tuple[list[float], list[list[list[str]]], list[list[str]]]:
     n = len(block.header)
     weights = block.widths or tuple(1.0 for _ in range(n))
     if len(weights) != n or any(len(row) != n for row in block.rows):
         raise ValueError(f"table with {n} columns got rows/widths of another length")
-    total = sum(weights)
-    widths = [TEXT_WIDTH * w / total for w in weights]
     pad = 0.05
-    header = [wrap(h, w - 2 * pad, block.size, weight="bold") for h, w in zip(block.header, widths)]
-    rows = [[wrap(c, w - 2 * pad, block.size) for c, w in zip(row, widths)] for row in block.rows]
+    widths = column_widths(block, weights, pad)
+    header = [
+        wrap(h, w - 2 * pad, block.size, weight="bold")
+        for h, w in zip(block.header, widths, strict=True)
+    ]
+    rows = [
+        [wrap(c, w - 2 * pad, block.size) for c, w in zip(row, widths, strict=True)]
+        for row in block.rows
+    ]
     return widths, rows, header
 
 
@@ -339,7 +382,7 @@ def _table(flow: _Flow, block: Table) -> None:
 
     def draw_row(cells: list[list[str]], weight: str) -> None:
         height = max(len(c) for c in cells) * step + 0.06
-        for left, lines in zip(lefts, cells):
+        for left, lines in zip(lefts, cells, strict=False):
             for k, line in enumerate(lines):
                 op = TextOp(left + pad, flow.y + 0.03 + k * step, line, block.size, weight=weight)
                 flow.page.ops.append(op)
@@ -351,8 +394,10 @@ def _table(flow: _Flow, block: Table) -> None:
         flow.page.ops.append(LineOp(MARGIN_X, right, flow.y, 0.6))
 
     header_height = max(len(c) for c in header) * step + 0.06
-    first = max((len(c) for c in rows[0]), default=1) * step + 0.06 if rows else 0
-    flow.ensure(header_height + first + 0.1)
+    heights = [max(len(c) for c in cells) * step + 0.06 for cells in rows]
+    whole = header_height + sum(heights) + 0.1
+    usable = PAGE_HEIGHT - MARGIN_TOP - MARGIN_BOTTOM
+    flow.ensure(whole if whole < 0.5 * usable else header_height + (heights[:1] or [0])[0] + 0.1)
     draw_header()
     for cells in rows:
         height = max(len(c) for c in cells) * step + 0.06
@@ -399,7 +444,9 @@ def _draw(fig: plt.Figure, page: Page) -> None:
                      fontweight=op.weight, color=op.colour, ha=op.ha, va="top",
                      family="DejaVu Sans", parse_math=False)  # fmt: skip
         elif isinstance(op, ImageOp):
-            ax = fig.add_axes((fx(op.x), fy(op.y + op.height), fx(op.width), op.height / PAGE_HEIGHT))
+            ax = fig.add_axes(
+                (fx(op.x), fy(op.y + op.height), fx(op.width), op.height / PAGE_HEIGHT)
+            )
             ax.imshow(mpimg.imread(op.path), interpolation="antialiased")
             ax.set_axis_off()
         elif isinstance(op, LineOp):

@@ -10,7 +10,6 @@ from report_rules import (
     drift_discussion,
     hazard_value_loss,
     join_words,
-    num,
     sweep_comparison,
     sweep_cost,
     verification_sentence,
@@ -31,7 +30,6 @@ SPEC = {
     "prob_drift": 0.1,
     "max_steps": 50,
 }
-ARROWS = ("↑", "→", "↓", "←")
 SECTIONS = (
     "Problem 1: Dynamic programming on a stochastic gridworld",
     "1.1 Environment and layout",
@@ -66,9 +64,7 @@ def _cell_symbol(row: int, col: int) -> str:
 
 def environment(summary: dict | None) -> list[Block]:
     size = SPEC["size"]
-    rows = tuple(
-        (str(r), *(_cell_symbol(r, c) for c in range(size))) for r in range(size)
-    )
+    rows = tuple((str(r), *(_cell_symbol(r, c) for c in range(size))) for r in range(size))
     gamma = f"γ = {summary['gamma']}" if summary else "γ (see summary.json)"
     text = (
         f"The agent moves on a {size}×{size} grid from the start {SPEC['start']} to the goal "
@@ -131,8 +127,15 @@ def iterations(summary: dict | None) -> list[Block]:
             f"{summary['max_value_difference_vi_qi']:.1e}. {agree}."
         ),
         Table(
-            ("algorithm", "sweeps", "converged", "last change", "Bellman residual",
-             "V(start)", "µs / sweep"),
+            (
+                "algorithm",
+                "sweeps",
+                "converged",
+                "last change",
+                "Bellman residual",
+                "V(start)",
+                "µs / sweep",
+            ),
             tuple(rows),
             (1.5, 0.8, 0.9, 1, 1.1, 0.9, 0.9),
             "Convergence of both solvers (problem1/results/summary.json). The time per sweep "
@@ -140,29 +143,6 @@ def iterations(summary: dict | None) -> list[Block]:
         ),  # fmt: skip
     ]
     return blocks
-
-
-def _value_table(values, policy) -> Table:
-    size = SPEC["size"]
-    rows = []
-    for r in range(size):
-        cells = []
-        for c in range(size):
-            s = r * size + c
-            if (r, c) in SPEC["obstacles"]:
-                cells.append("obstacle")
-            elif (r, c) == SPEC["goal"]:
-                cells.append("goal")
-            else:
-                cells.append(f"{values[s]:.2f} {ARROWS[int(policy[s])]}")
-        rows.append((str(r), *cells))
-    return Table(
-        ("row", *(f"col {c}" for c in range(size))),
-        tuple(rows),
-        (0.5, 1, 1, 1, 1, 1),
-        "V*(s) and the greedy action in each cell (value_function.npz, optimal_policy.npz).",
-        size=8.5,
-    )
 
 
 def intended_path(policy) -> list[tuple[int, int]]:
@@ -194,7 +174,9 @@ def value_and_policy(results: Results, summary: dict | None) -> list[Block]:
         lowest = min(around, key=lambda s: v[s])
         path = intended_path(pi)
         hazards = {tuple(h) for h in SPEC["penalties"]}
-        brushes = [c for c in path if any(abs(c[0] - h[0]) + abs(c[1] - h[1]) == 1 for h in hazards)]
+        brushes = [
+            c for c in path if any(abs(c[0] - h[0]) + abs(c[1] - h[1]) == 1 for h in hazards)
+        ]
         route = " → ".join(f"({r}, {c})" for r, c in path)
         ends = "reaches the goal" if path[-1] == SPEC["goal"] else "does NOT reach the goal"
         beside = (
@@ -205,13 +187,12 @@ def value_and_policy(results: Results, summary: dict | None) -> list[Block]:
         blocks.append(
             Paragraph(
                 f"V* ranges from {v[lowest]:.2f} at {cell_name(lowest)} to {max(v):.2f} next "
-                f"to the goal. The penalty cells hold "
+                "to the goal. The penalty cells hold (the −5 is paid on entering them) "
                 f"{join_words([f'{v[s]:.2f} at {cell_name(s)}' for s in penalties])}. "
                 f"Following the policy with every move succeeding, the route from the start "
                 f"is {route} ({len(path) - 1} moves); it {ends}, and {beside}."
             )
         )
-        blocks.append(_value_table(v, pi))
     else:
         blocks.append(Note(missing_note("the arrays value_function.npz / optimal_policy.npz",
                                         P1_COMMAND)))  # fmt: skip
@@ -274,15 +255,15 @@ def convergence(results: Results, summary: dict | None) -> list[Block]:
             "convergence.png",
             "Figure 1.4 — Sup-norm change per sweep for VI and QI on a log axis, with the "
             "γ^k contraction bound.",
-            3.6,
+            3.2,
         )
     )
     blocks.append(
         _figure(
             results,
             "comparison.png",
-            "Figure 1.5 — VI and QI side by side: values and policies.",
-            3.6,
+            "Figure 1.5 — VI and QI side by side: values and policies, and their difference.",
+            2.6,
         )
     )
     return blocks
@@ -317,8 +298,15 @@ def stochasticity(results: Results) -> list[Block]:
     )
     blocks.append(
         Table(
-            ("drift", "intended", "sweeps", "V(start)", "E[steps]", "E[penalty entries]",
-             "detour states"),
+            (
+                "drift",
+                "intended",
+                "sweeps",
+                "V(start)",
+                "E[steps]",
+                "E[penalty entries]",
+                "detour states",
+            ),
             rows,
             (0.6, 0.7, 0.6, 0.8, 0.8, 1.1, 2.6),
             "Stochasticity study (stochasticity_study.json); expected values under the "

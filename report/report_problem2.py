@@ -18,7 +18,6 @@ from report_layout import Block, Bullets, Figure, Heading, Note, Paragraph, Tabl
 from report_rules import (
     dial_sentence,
     generalisation_sentence,
-    interval_relation,
     join_words,
     message_effect,
     num,
@@ -108,7 +107,11 @@ class P2:
         )
 
     def root(self, experiment: str) -> Path:
-        return self.results.problem2 if experiment == "main" else self.results.p2(f"studies/{experiment}")
+        return (
+            self.results.problem2
+            if experiment == "main"
+            else self.results.p2(f"studies/{experiment}")
+        )
 
     def experiment(self, name: str) -> dict | None:
         if not self.performance:
@@ -245,7 +248,10 @@ def reward_choice(p2: P2) -> list[Block]:
     )
     rows = []
     main_finals = p2.results.final_runs(p2.root("main")).get("full", [])
-    for label, runs in (("literal per-step reward", finals), ("arrival reward (ours)", main_finals)):
+    for label, runs in (
+        ("literal per-step reward", finals),
+        ("arrival reward (ours)", main_finals),
+    ):
         if runs:
             e = [r["eps"] for r in runs]
             rows.append((
@@ -256,8 +262,13 @@ def reward_choice(p2: P2) -> list[Block]:
             ))  # fmt: skip
     blocks.append(
         Table(
-            ("full configuration", "seeds", "success", "steps with exactly one on target",
-             "episodes where one never arrives"),
+            (
+                "full configuration",
+                "seeds",
+                "success",
+                "steps with exactly one on target",
+                "episodes where one never arrives",
+            ),
             tuple(rows),
             (1.8, 0.6, 0.9, 1.4, 1.4),
             "Parking under the two rewards (trainer's final test, 1000 episodes per seed, "
@@ -353,13 +364,15 @@ def hyperparameters(p2: P2) -> list[Block]:
     blocks: list[Block] = [Heading(SECTIONS[4])]
     if not p2.hyper:
         return blocks + [Note(missing_note("agent_models/hyperparameters.json", TRAIN_COMMAND))]
-    rows = tuple(
-        (name, str(p2.hyper[name]), text) for name, text in HYPER_ROWS if name in p2.hyper
-    )
+    rows = tuple((name, str(p2.hyper[name]), text) for name, text in HYPER_ROWS if name in p2.hyper)
     blocks.append(
-        Table(("parameter", "value", "meaning"), rows, (1.4, 0.9, 3.6),
-              "Hyperparameters of the main experiment (agent_models/hyperparameters.json); "
-              "the studies change only the entries named in their sections.")  # fmt: skip
+        Table(
+            ("parameter", "value", "meaning"),
+            rows,
+            (1.4, 0.9, 3.6),
+            "Hyperparameters of the main experiment (agent_models/hyperparameters.json); "
+            "the studies change only the entries named in their sections.",
+        )  # fmt: skip
     )
     timing = p2.results.json(p2.results.p2("training_logs/timing.json"))
     if timing:
@@ -430,6 +443,13 @@ def final_success(p2: P2) -> list[Block]:
             continue
         entry = experiment.get("modes", {}).get(mode, {})
         steps = Stat.of(entry.get("eps", {}).get("mean_steps_to_success")).mean
+        if steps is None:  # trainer's final tests
+            found = [
+                r["eps"]["mean_steps_to_success"]
+                for r in p2.results.final_runs(p2.root("main")).get(mode, [])
+            ]
+            found = [v for v in found if v is not None]
+            steps = float(np.mean(found)) if found else None
         per_seed = ", ".join(f"{100 * v:.0f}" for v in table[mode]["eps"].per_seed if v is not None)
         rows.append((mode, table[mode]["greedy"].text(), table[mode]["eps"].text(), per_seed,
                      num(steps, 1)))  # fmt: skip
@@ -440,8 +460,13 @@ def final_success(p2: P2) -> list[Block]:
             rows.append((name, rate, rate, "–", num(summary.get("mean_steps_to_success"), 1)))
     blocks.append(
         Table(
-            ("policy", "success, greedy", "success, ε = 0.05", "per seed (ε, %)",
-             "steps to success (ε)"),
+            (
+                "policy",
+                "success, greedy",
+                "success, ε = 0.05",
+                "per seed (ε, %)",
+                "steps to success (ε)",
+            ),
             tuple(rows),
             (1.1, 1.7, 1.7, 1.5, 1.0),
             "Success on the training map. " + _source_note(from_eval),
@@ -449,7 +474,13 @@ def final_success(p2: P2) -> list[Block]:
     )
     means = {m: table[m]["eps"].mean for m in table if table[m]["eps"].mean is not None}
     cis = {m: table[m]["eps"].ci for m in table}
-    blocks.append(Paragraph("At ε = 0.05: " + ordering_sentence(means, cis)))
+    blocks.append(
+        Paragraph(
+            "At ε = 0.05, "
+            + ordering_sentence(means, cis)[0].lower()
+            + ordering_sentence(means, cis)[1:]
+        )
+    )
     checks = [
         target_check(f"{mode} ({'greedy' if c == 'greedy' else 'ε = 0.05'})",
                      table[mode][c].mean if mode in table else None, target)
@@ -546,8 +577,15 @@ def message_meaning(p2: P2, experiment: dict) -> list[Block]:
     if rows:
         blocks.append(
             Table(
-                ("mode", "agent", "on target", "sees target", "distance to target",
-                 "distance between agents", "time step"),
+                (
+                    "mode",
+                    "agent",
+                    "on target",
+                    "sees target",
+                    "distance to target",
+                    "distance between agents",
+                    "time step",
+                ),
                 tuple(rows),
                 (0.7, 0.6, 0.9, 0.9, 1.1, 1.2, 0.9),
                 "What the message encodes: Pearson correlation of the message sent with "
@@ -622,7 +660,11 @@ def failures(p2: P2) -> list[Block]:
     definitions = (p2.performance or {}).get("protocol", {}).get("failure_definitions", {})
     if definitions:
         blocks.append(
-            Bullets(tuple(f"{k}: {v}" for k, v in definitions.items() if k in (*FAILURE_KINDS, "window")))
+            Bullets(
+                tuple(
+                    f"{k}: {v}" for k, v in definitions.items() if k in (*FAILURE_KINDS, "window")
+                )
+            )
         )
     rows, dominant = [], []
     for mode, entry in experiment.get("modes", {}).items():
@@ -759,7 +801,11 @@ def limits(p2: P2) -> list[Block]:
         if causal:
             diff = causal["eps"]["real_minus_shuffled"]
             ci = diff.get("ci95") if diff.get("n", 0) > 1 else diff.get("episode_ci95")
-            if diff.get("mean") is not None and ci and message_effect(diff["mean"], ci)[0] != "helps":
+            if (
+                diff.get("mean") is not None
+                and ci
+                and message_effect(diff["mean"], ci)[0] != "helps"
+            ):
                 items.append(
                     f"In {mode} mode the causal test finds no benefit of the real message on "
                     "the training map; whatever the agents gain there does not come from the "
@@ -789,8 +835,9 @@ def problem2_blocks(results: Results) -> list[Block]:
     """Every block of the Problem 2 part."""
     p2 = P2.load(results)
     blocks: list[Block] = [Heading(SECTIONS[0], level=1)]
-    for section in (environment, reward_choice, architecture, hyperparameters, training_curves,
-                    final_success, message_use, strategies, failures, map_panel, limits):  # fmt: skip
+    sections = (environment, reward_choice, architecture, hyperparameters, training_curves,
+                final_success, message_use, strategies, failures, map_panel, limits)  # fmt: skip
+    for section in sections:
         blocks += section(p2)
     return blocks
 

@@ -58,8 +58,9 @@ def sweep_comparison(vi_sweeps: int, qi_sweeps: int) -> str:
             f"VI and QI need the same number of sweeps ({vi_sweeps}). This is expected: "
             "starting from zero, the Q-iterate after k sweeps is exactly the one-step "
             "look-ahead of the V-iterate after k − 1 sweeps, so max_a Q_k = V_k and both "
-            "sequences contract at the same rate γ in the sup norm; the stopping tests see "
-            "the same changes up to the last backup."
+            "sequences contract at the same rate γ in the sup norm. QI's change at sweep k is "
+            "at most γ times VI's change at sweep k − 1, so the two stopping tests fire at the "
+            "same or at adjacent sweeps."
         )
     more, fewer = ("QI", "VI") if qi_sweeps > vi_sweeps else ("VI", "QI")
     return (
@@ -121,7 +122,7 @@ def drift_discussion(settings: list[dict]) -> list[str]:
     first, last = settings[0], settings[-1]
     sentences = []
     values = [s["v_start"] for s in settings]
-    monotone = all(b <= a + 1e-12 for a, b in zip(values, values[1:]))
+    monotone = all(b <= a + 1e-12 for a, b in zip(values, values[1:], strict=False))
     trend = "falls monotonically" if monotone else "changes non-monotonically"
     sentences.append(
         f"V(start) {trend} from {first['v_start']:.2f} at drift {first['drift']:g} to "
@@ -216,7 +217,8 @@ def target_check(name: str, value: float | None, target: float) -> str:
         return f"{name}: no result to compare with the target of {pct(target, 0)}."
     if value >= target:
         return f"{name}: {pct(value)} meets the target of {pct(target, 0)}."
-    return f"{name}: {pct(value)} MISSES the target of {pct(target, 0)} by {100 * (target - value):.1f} points."
+    gap = 100 * (target - value)
+    return f"{name}: {pct(value)} MISSES the target of {pct(target, 0)} by {gap:.1f} points."
 
 
 def ordering_sentence(means: dict[str, float], cis: dict[str, Sequence[float] | None]) -> str:
@@ -225,23 +227,25 @@ def ordering_sentence(means: dict[str, float], cis: dict[str, Sequence[float] | 
     text = " > ".join(f"{m} ({pct(means[m])})" for m in order)
     separated = [
         f"{a} vs {b}"
-        for a, b in zip(order, order[1:])
+        for a, b in zip(order, order[1:], strict=False)
         if interval_relation(cis.get(a), cis.get(b)) == "above"
     ]
     overlapping = [
         f"{a} vs {b}"
-        for a, b in zip(order, order[1:])
+        for a, b in zip(order, order[1:], strict=False)
         if interval_relation(cis.get(a), cis.get(b)) != "above"
     ]
     expected = [m for m in ("full", "comm", "independent") if m in means]
     holds = order == expected
-    head = f"Ordering by success: {text}. "
+    head = f"The ordering by success is {text}. "
     head += (
         "More information gives more success, as expected. "
         if holds
         else "This is NOT the order full > comm > independent that more information suggests. "
     )
-    if separated:
+    if all(not cis.get(m) for m in order):
+        head += "Confidence intervals are not available, so no difference is claimed."
+    elif separated:
         head += f"The 95 % CIs separate {join_words(separated)}"
         head += f"; they overlap for {join_words(overlapping)}." if overlapping else "."
     else:
@@ -263,7 +267,9 @@ def parking_sentence(per_step_success: float, arrival_success: float | None,
         if arrival_success is not None
         else ""
     )
-    hacked = never_arrives >= 0.5 and (arrival_success is None or per_step_success < arrival_success)
+    hacked = never_arrives >= 0.5 and (
+        arrival_success is None or per_step_success < arrival_success
+    )
     if hacked:
         verdict = (
             " The agents learned the loophole: one parks on the target to collect +2 per "
