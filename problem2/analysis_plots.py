@@ -25,10 +25,8 @@ def draw_map(ax: Axes, grid: np.ndarray) -> None:
     ax.imshow(np.where(grid == OBSTACLE, 0.35, 1.0), cmap="gray", vmin=0, vmax=1)
     target_row, target_col = np.argwhere(grid == TARGET)[0]
     ax.plot(target_col, target_row, marker="*", markersize=18, color="gold", mec="black")
-    ax.set_xticks(np.arange(-0.5, cols), minor=True)
-    ax.set_yticks(np.arange(-0.5, rows), minor=True)
-    ax.grid(which="minor", color="0.8", linewidth=0.6)
-    ax.tick_params(which="minor", length=0)
+    ax.vlines(np.arange(-0.5, cols), -0.5, rows - 0.5, color="0.8", linewidth=0.6)
+    ax.hlines(np.arange(-0.5, rows), -0.5, cols - 0.5, color="0.8", linewidth=0.6)
     ax.set_xlabel("column")
     ax.set_ylabel("row")
 
@@ -58,7 +56,8 @@ def plot_trajectories(
                 ax.set_title(f"{label}: no {kind} episode")
                 continue
             draw_paths(ax, trace)
-            outcome = f"success in {trace.length} steps" if trace.success else "failure"
+            steps = f"{trace.length} step{'s' if trace.length != 1 else ''}"
+            outcome = f"success in {steps}" if trace.success else "failure"
             detail = f" ({trace.description})" if trace.description else ""
             ax.set_title(f"{label}: {outcome}{detail}", fontsize=10)
     axes[0, 0].legend(loc="upper left", bbox_to_anchor=(0, -0.12), ncol=4, fontsize=8)
@@ -87,49 +86,52 @@ def plot_message_heatmap(
             ax.set_ylabel("row")
     if image is not None:
         fig.colorbar(image, ax=axes, shrink=0.8, label="mean message sent from the cell (0–1)")
-    fig.suptitle("Mean message per cell (greedy test episodes, best seed; ☆ target)")
+    fig.suptitle(
+        "Mean message per cell (greedy test episodes, best seed; ☆ target, "
+        "dark grey obstacles, light grey never visited)"
+    )
     return save_figure(fig, path)
 
 
 def _viridis_with_grey():
     from matplotlib import colormaps
 
-    cmap = colormaps["viridis"].copy()
-    cmap.set_bad("0.88")
-    return cmap
+    return colormaps["viridis"].with_extremes(bad="0.88")
 
 
 def save_episode_gif(
     trace: EpisodeTrace, grid: np.ndarray, path: str | Path, title: str, fps: int = 3
 ) -> Path:
-    """Animate one episode: both agents on the map (left) and the message each sends at
-    that step (right), one frame per step plus the final position."""
-    fig = Figure(figsize=(7.5, 4.2), layout="constrained")
-    map_ax, bar_ax = fig.subplots(1, 2, width_ratios=(2.2, 1))
-    draw_map(map_ax, grid)
-    markers = [
-        map_ax.plot([], [], "o", color=AGENT_COLOURS[a], markersize=14, label=f"agent {'AB'[a]}")[0]
-        for a in range(2)
-    ]
-    trails = [map_ax.plot([], [], color=AGENT_COLOURS[a], alpha=0.5)[0] for a in range(2)]
-    map_ax.legend(loc="upper left", bbox_to_anchor=(0, -0.12), ncol=2, fontsize=8)
-    bars = bar_ax.bar(["A → B", "B → A"], [0, 0], color=AGENT_COLOURS)
-    bar_ax.set_ylim(0, 1)
-    bar_ax.set_ylabel("message sent at this step (0–1)")
-    bar_ax.set_title("messages")
+    """Animate one episode: both agents on the map with their trails, and the message each
+    sends at that step written beside it, one frame per step plus the final position."""
+    fig = Figure(figsize=(5.2, 5.4))
+    ax = fig.add_axes((0.12, 0.13, 0.8, 0.76))  # fixed layout: fast frames
+    draw_map(ax, grid)
+    markers, trails, labels = [], [], []
+    for agent in range(2):
+        colour = AGENT_COLOURS[agent]
+        markers.append(ax.plot([], [], "o", color=colour, markersize=13)[0])
+        trails.append(ax.plot([], [], color=colour, alpha=0.5)[0])
+        labels.append(ax.text(0, 0, "", color=colour, fontsize=9, fontweight="bold"))
+    caption = fig.text(0.5, 0.02, "", ha="center", fontsize=9)
     heading = fig.suptitle(title)
 
     def draw(frame: int) -> list:
+        sent = trace.messages[min(frame, trace.length - 1)]
         for agent in range(2):
             path = trace.positions[: frame + 1, agent] + AGENT_OFFSETS[agent]
             markers[agent].set_data([path[-1, 1]], [path[-1, 0]])
             trails[agent].set_data(path[:, 1], path[:, 0])
-        sent = trace.messages[min(frame, trace.length - 1)]
-        for bar, value in zip(bars, sent, strict=True):
-            bar.set_height(float(value))
-        status = "both on the target" if frame == trace.length and trace.success else ""
-        heading.set_text(f"{title} — step {frame}/{trace.length} {status}".rstrip())
-        return [*markers, *trails, *bars, heading]
+            labels[agent].set_position((path[-1, 1] + 0.25, path[-1, 0] - 0.25 + 0.5 * agent))
+            labels[agent].set_text(f"{sent[agent]:.2f}")
+        caption.set_text(
+            f"messages sent (0–1): A (blue) → B {sent[0]:.2f}, B (red) → A {sent[1]:.2f}"
+            if frame < trace.length
+            else "episode over"
+        )
+        done = " — both on the target" if frame == trace.length and trace.success else ""
+        heading.set_text(f"{title}: step {frame}/{trace.length}{done}")
+        return [*markers, *trails, *labels, caption, heading]
 
     animation = FuncAnimation(fig, draw, frames=trace.length + 1, blit=False)
     final = Path(path)
