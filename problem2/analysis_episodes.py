@@ -21,7 +21,8 @@ MAX_BATCH = 5_000  # episodes stepped together; more run in rounds
 MESSAGE_CONDITIONS = ("real", "shuffled", "zeroed")
 FAILURE_KINDS = ("swapping", "parked", "looping", "other")
 FAILURE_WINDOW = 10  # the last steps of a failed episode that its classification looks at
-MAX_LOOP_PERIOD = 4
+LOOP_CELLS = 4  # at most this many distinct cells per agent in the window: looping
+PARKED_SHARE = 0.5  # on the target at least this share of the window: parked
 SWAP_RADIUS = 2  # Manhattan distance from the target within which a swap counts
 
 
@@ -140,16 +141,18 @@ def evaluate_models(
 def classify_failures(results: EpisodeResults, target: tuple[int, int]) -> np.ndarray:
     """Failure kind of each episode (E,) as an index into ``FAILURE_KINDS``; −1 on success.
 
-    A failed episode ran the full ``T`` steps; its last ``FAILURE_WINDOW`` steps (W) are
-    examined and the first matching kind, in this order, is its kind:
+    A failed episode ran the full ``T`` steps; its window, the last ``FAILURE_WINDOW`` steps
+    (W, so W + 1 positions), is examined and the first matching kind, in this order, is its
+    kind (the thresholds leave room for the odd random move of an ε-greedy policy):
 
-    * ``swapping``: at least two of the last W steps are swaps — each agent moves into the
-      cell the other just left — between cells within Manhattan distance ``SWAP_RADIUS``
-      of the target (the two agents keep trading places next to it);
-    * ``parked``: one agent stands on the target at each of the last W + 1 positions and
-      the other never stood on it in the whole episode;
-    * ``looping``: the pair of positions over the last W + 1 positions repeats with a
-      period of at most ``MAX_LOOP_PERIOD`` steps (period 1: both stand still);
+    * ``swapping``: at least two of the W steps are swaps — each agent moves into the cell
+      the other just left — between cells within Manhattan distance ``SWAP_RADIUS`` of the
+      target (the two agents keep trading places next to it);
+    * ``parked``: one agent is on the target at the last position and at least a share
+      ``PARKED_SHARE`` of the window's positions, and the other never stood on it in the
+      whole episode;
+    * ``looping``: each agent visits at most ``LOOP_CELLS`` distinct cells in the window
+      (both keep moving among a few cells, or stand still);
     * ``other``: none of these (e.g. still wandering when time ran out).
 
     Needs ``results`` recorded (``record=True``).
@@ -168,23 +171,28 @@ def classify_failures(results: EpisodeResults, target: tuple[int, int]) -> np.nd
     )  # (E, W)
     on_target = np.all(window == target, axis=-1)  # (E, W + 1, 2)
     ever_on_target = np.all(positions == target, axis=-1).any(axis=1)  # (E, 2)
-    parked = (on_target.all(axis=1) & ~ever_on_target[:, ::-1]).any(axis=1)
-    looping = np.zeros(len(positions), dtype=bool)
-    for period in range(1, MAX_LOOP_PERIOD + 1):
-        looping |= np.all(window[:, period:] == window[:, :-period], axis=(1, 2, 3))
+    stays = on_target[:, -1] & (on_target.mean(axis=1) >= PARKED_SHARE)  # (E, 2)
+    parked = (stays & ~ever_on_target[:, ::-1]).any(axis=1)
+    cells = window[..., 0] * (positions[..., 1].max() + 1) + window[..., 1]  # (E, W + 1, 2)
+    ordered = np.sort(cells, axis=1)
+    distinct = 1 + (np.diff(ordered, axis=1) != 0).sum(axis=1)  # (E, 2)
+    looping = np.all(distinct <= LOOP_CELLS, axis=1)
     kinds = np.select(
         [swaps.sum(axis=1) >= 2, parked, looping], [0, 1, 2], default=FAILURE_KINDS.index("other")
     )
     return np.where(results.successes, -1, kinds)
 
 
-def failure_shares(results: EpisodeResults, target: tuple[int, int]) -> dict[str, float | int]:
-    """Number of failed episodes and the share of each kind among them (0 if none failed)."""
+def failure_shares(
+    results: EpisodeResults, target: tuple[int, int]
+) -> dict[str, float | int | None]:
+    """Number of failed episodes and the share of each kind among them (None if none
+    failed)."""
     kinds = classify_failures(results, target)
     failed = kinds[kinds >= 0]
-    shares: dict[str, float | int] = {"failed_episodes": int(failed.size)}
+    shares: dict[str, float | int | None] = {"failed_episodes": int(failed.size)}
     for index, kind in enumerate(FAILURE_KINDS):
-        shares[kind] = float(np.mean(failed == index)) if failed.size else 0.0
+        shares[kind] = float(np.mean(failed == index)) if failed.size else None
     return shares
 
 

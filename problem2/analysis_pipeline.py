@@ -21,7 +21,8 @@ from analysis_episodes import (
     EVAL_SEED,
     FAILURE_KINDS,
     FAILURE_WINDOW,
-    MAX_LOOP_PERIOD,
+    LOOP_CELLS,
+    PARKED_SHARE,
     SWAP_RADIUS,
     episode_summary,
 )
@@ -46,9 +47,10 @@ FAILURE_DEFINITIONS = {
     "window": f"the last {FAILURE_WINDOW} steps of a failed (timed-out) episode",
     "swapping": f"at least 2 steps of the window in which the agents exchange cells, both "
     f"cells within Manhattan distance {SWAP_RADIUS} of the target",
-    "parked": "one agent on the target throughout the window, the other never on it in the episode",
-    "looping": f"the pair of positions repeats over the window with period <= "
-    f"{MAX_LOOP_PERIOD} (period 1: both stand still)",
+    "parked": f"one agent on the target at the end and at >= {PARKED_SHARE:.0%} of the "
+    "window's positions, the other never on it in the episode",
+    "looping": f"each agent visits at most {LOOP_CELLS} distinct cells in the window "
+    "(moving among a few cells or standing still)",
     "other": "none of the above; kinds are checked in the order listed",
 }
 MESSAGE_TEST = {
@@ -97,25 +99,30 @@ def aggregate(summaries: list[dict]) -> dict[str, Any]:
 
 
 def message_verdict(causal: dict[str, dict], epsilon: float) -> tuple[bool, str]:
-    """(used, plain-language verdict) from the real − shuffled difference over seeds; with
-    one seed its episode-level CI is used instead."""
+    """(used, plain-language verdict) from the real − shuffled success difference and its
+    95 % bootstrap CI over seeds (with one seed, the episode-level CI). The message counts
+    as used when the CI of the ε-greedy condition lies above 0."""
     parts, used = [], False
     for name in CONDITIONS:
         diff = causal[name]["real_minus_shuffled"]
         low, high = diff["ci95"] if diff["n"] > 1 else diff["episode_ci95"]
         label = "greedy" if name == "greedy" else f"ε = {epsilon}"
-        span = f"{diff['mean']:+.3f} (95 % CI [{low:+.3f}, {high:+.3f}])"
+        span = f"real − shuffled = {diff['mean']:+.3f} (95 % CI [{low:+.3f}, {high:+.3f}])"
         if low > 0:
-            parts.append(f"{label}: shuffling lowers success by {span} — the message is used")
+            parts.append(f"{label}: {span}, above 0: the partner relies on its content")
             used = used or name == "eps"
         elif high < 0:
-            parts.append(f"{label}: shuffling raises success ({span}) — the message hurts")
+            parts.append(
+                f"{label}: {span}, below 0: a message from another episode does better than "
+                "the real one (a random input can break a greedy policy's loops)"
+            )
         else:
-            parts.append(f"{label}: real − shuffled = {span} includes 0")
+            parts.append(f"{label}: {span} includes 0")
     head = (
         "The message carries information the partner uses."
         if used
-        else "No evidence that the message carries anything the partner uses."
+        else "No evidence that the message carries anything the partner uses: replacing it "
+        "by a message from another episode does not lower success."
     )
     return used, f"{head} " + "; ".join(parts) + "."
 
