@@ -19,10 +19,10 @@ import numpy as np
 from environment import GridWorldEnv
 from file_io import atomic_save_figure, atomic_save_json
 from matplotlib.figure import Figure
+from train import add_solver_arguments
 from value_iteration import ValueIteration
 from visualize import GridWorldVisualizer
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
 DRIFTS = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3)
 REFERENCE_DRIFT = 0.1  # the assignment's setting
 
@@ -106,17 +106,7 @@ def plot_start_value(results: list[dict[str, Any]]) -> Figure:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--gamma", type=float, default=0.95, help="discount factor")
-    parser.add_argument("--epsilon", type=float, default=1e-4, help="sup-norm stopping threshold")
-    parser.add_argument(
-        "--results_dir",
-        "--results-dir",
-        dest="results_dir",
-        type=Path,
-        default=RESULTS_DIR,
-        help="output folder",
-    )
+    parser = add_solver_arguments(argparse.ArgumentParser(description=__doc__.split("\n")[0]))
     args = parser.parse_args(argv)
 
     results = [solve_drift(drift, args.gamma, args.epsilon) for drift in DRIFTS]

@@ -26,11 +26,24 @@ RESULTS_DIR = Path(__file__).resolve().parent / "results"
 Z_99 = 2.5758293035489  # two-sided 99 % quantile of the standard normal
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--seed", type=int, default=641, help="seed of the Monte-Carlo check")
+def add_solver_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The flags every Problem 1 script shares: --gamma, --epsilon, --results_dir."""
     parser.add_argument("--gamma", type=float, default=0.95, help="discount factor")
     parser.add_argument("--epsilon", type=float, default=1e-4, help="sup-norm stopping threshold")
+    parser.add_argument(
+        "--results_dir",
+        "--results-dir",
+        dest="results_dir",
+        type=Path,
+        default=RESULTS_DIR,
+        help="output folder",
+    )
+    return parser
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = add_solver_arguments(argparse.ArgumentParser(description=__doc__.split("\n")[0]))
+    parser.add_argument("--seed", type=int, default=641, help="seed of the Monte-Carlo check")
     parser.add_argument(
         "--max_iter",
         "--max-iter",
@@ -46,14 +59,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         type=int,
         default=10_000,
         help="episodes of the Monte-Carlo check of V(start)",
-    )
-    parser.add_argument(
-        "--results_dir",
-        "--results-dir",
-        dest="results_dir",
-        type=Path,
-        default=RESULTS_DIR,
-        help="output folder",
     )
     return parser.parse_args(argv)
 
