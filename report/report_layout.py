@@ -395,7 +395,8 @@ def _table(flow: _Flow, block: Table) -> None:
 
     header_height = max(len(c) for c in header) * step + 0.06
     heights = [max(len(c) for c in cells) * step + 0.06 for cells in rows]
-    whole = header_height + sum(heights) + 0.1
+    caption = len(wrap(block.caption, TEXT_WIDTH, 8.5, "italic")) if block.caption else 0
+    whole = header_height + sum(heights) + 0.1 + caption * line_height(8.5)
     usable = PAGE_HEIGHT - MARGIN_TOP - MARGIN_BOTTOM
     flow.ensure(whole if whole < 0.5 * usable else header_height + (heights[:1] or [0])[0] + 0.1)
     draw_header()

@@ -793,7 +793,7 @@ def limits(p2: P2) -> list[Block]:
     table, from_eval = p2.success("main")
     for mode, condition, target in TARGETS:
         value = table.get(mode, {}).get(condition)
-        if value and value.mean is not None and value.mean < target:
+        if value and value.mean is not None and value.mean < target - 1e-9:
             items.append(target_check(f"Target missed — {mode}", value.mean, target))
     experiment = (p2.communication or {}).get("experiments", {}).get("main", {})
     for mode in ("comm", "full"):

@@ -215,7 +215,7 @@ def target_check(name: str, value: float | None, target: float) -> str:
     """'met' or 'missed' wording for a success target of the learning issue."""
     if value is None:
         return f"{name}: no result to compare with the target of {pct(target, 0)}."
-    if value >= target:
+    if value >= target - 1e-9:  # 0.55 may arrive as 0.5499999999
         return f"{name}: {pct(value)} meets the target of {pct(target, 0)}."
     gap = 100 * (target - value)
     return f"{name}: {pct(value)} MISSES the target of {pct(target, 0)} by {gap:.1f} points."
@@ -298,7 +298,7 @@ def dial_sentence(mode: str, dial: tuple[float, Sequence[float] | None],
 
 def generalisation_sentence(trained: float | None, unseen: float, oracle: float) -> str:
     """How the success on unseen maps compares with the training map and the oracle."""
-    base = f"On the unseen maps the agents succeed in {pct(unseen)} of episodes on average"
+    base = f"on the unseen maps the agents succeed in {pct(unseen)} of episodes on average"
     base += f" (oracle: {pct(oracle)})"
     if trained is None:
         return base + "."
