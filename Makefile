@@ -7,9 +7,9 @@ PY     := $(CURDIR)/$(VENV)/bin/python
 RUNTIME_STAMP := $(VENV)/.runtime-installed
 DEV_STAMP     := $(VENV)/.dev-installed
 
-.PHONY: all problem1 problem2 p2-baselines p2-main p2-studies test lint bench clean
+.PHONY: all problem1 problem2 p2-baselines p2-main p2-studies report test lint bench clean
 
-all: problem1 problem2
+all: problem1 problem2 report
 
 $(VENV)/bin/python:
 	$(PYTHON) -m venv $(VENV)
@@ -46,6 +46,10 @@ p2-studies: $(RUNTIME_STAMP)
 	cd problem2 && for map in 0 1 2 3 4; do \
 		$(PY) train.py --map_seed $$map --num_seeds 3 \
 			--output_dir $(P2_STUDIES)/map_panel/map$$map || exit 1; done
+
+## The written report, built from the result files (seconds).
+report: $(RUNTIME_STAMP)
+	$(PY) report/build_report.py
 
 test: $(DEV_STAMP)
 	$(PY) -m pytest
