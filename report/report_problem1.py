@@ -180,7 +180,8 @@ def value_and_policy(results: Results, summary: dict | None) -> list[Block]:
         route = " → ".join(f"({r}, {c})" for r, c in path)
         ends = "reaches the goal" if path[-1] == SPEC["goal"] else "does NOT reach the goal"
         beside = (
-            f"it passes next to a penalty cell at {join_words([str(c) for c in brushes])}"
+            f"on its way, {join_words([str(c) for c in brushes])} "
+            f"{'is' if len(brushes) == 1 else 'are'} next to a penalty cell"
             if brushes
             else "no cell on it is next to a penalty cell"
         )
