@@ -53,7 +53,7 @@ def plot_trajectories(
         for ax, trace, kind in zip(row_axes, traces, ("successful", "failed"), strict=True):
             draw_map(ax, grid)
             if trace is None:
-                ax.set_title(f"{label}: no {kind} episode")
+                ax.set_title(f"{label}: no {kind} episode", fontsize=10)
                 continue
             draw_paths(ax, trace)
             steps = f"{trace.length} step{'s' if trace.length != 1 else ''}"
@@ -85,11 +85,9 @@ def plot_message_heatmap(
             ax.set_xlabel("column")
             ax.set_ylabel("row")
     if image is not None:
-        fig.colorbar(image, ax=axes, shrink=0.8, label="mean message sent from the cell (0–1)")
-    fig.suptitle(
-        "Mean message per cell (greedy test episodes, best seed; ☆ target, "
-        "dark grey obstacles, light grey never visited)"
-    )
+        fig.colorbar(image, ax=axes, shrink=0.9, label="mean message sent (0–1)")
+    fig.suptitle("Mean message sent from each cell (greedy test episodes of the best seed)")
+    fig.supxlabel("☆ target; dark grey: obstacle; light grey: never visited", fontsize=9)
     return save_figure(fig, path)
 
 
