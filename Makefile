@@ -7,7 +7,8 @@ PY     := $(CURDIR)/$(VENV)/bin/python
 RUNTIME_STAMP := $(VENV)/.runtime-installed
 DEV_STAMP     := $(VENV)/.dev-installed
 
-.PHONY: all problem1 problem2 p2-baselines p2-main p2-studies report test lint bench clean
+.PHONY: all problem1 problem2 p2-baselines p2-main p2-studies p2-evaluate report test lint \
+	bench clean
 
 all: problem1 problem2 report
 
@@ -28,7 +29,7 @@ problem1: $(RUNTIME_STAMP)
 
 ## Problem 2: baselines, the main experiment (3 modes x 5 seeds), the studies.
 P2_STUDIES := results/studies
-problem2: p2-baselines p2-main p2-studies
+problem2: p2-baselines p2-main p2-studies p2-evaluate
 
 p2-baselines: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) baselines.py
@@ -46,6 +47,10 @@ p2-studies: $(RUNTIME_STAMP)
 	cd problem2 && for map in 0 1 2 3 4; do \
 		$(PY) train.py --map_seed $$map --num_seeds 3 \
 			--output_dir $(P2_STUDIES)/map_panel/map$$map || exit 1; done
+
+# Every mode and seed of the main experiment and of the studies (about a minute).
+p2-evaluate: $(RUNTIME_STAMP)
+	cd problem2 && $(PY) evaluate.py
 
 ## The written report, built from the result files (seconds).
 report: $(RUNTIME_STAMP)
