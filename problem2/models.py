@@ -10,6 +10,7 @@ from __future__ import annotations
 import copy
 import io
 import warnings
+import zipfile
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -103,6 +104,21 @@ def _torchscript_without_deprecation_warnings() -> Iterator[None]:
         yield
 
 
+class _ExportLinear(nn.Module):
+    """``nn.Linear`` without TorchScript constants. TorchScript writes a module's constants
+    (``in_features``, ``out_features``) in set order, which follows Python's per-process
+    string hashing, and caches compiled types per process; exporting this class instead
+    makes the saved file depend on the weights only."""
+
+    def __init__(self, linear: nn.Linear) -> None:
+        super().__init__()
+        self.weight = linear.weight
+        self.bias = linear.bias
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return nn.functional.linear(x, self.weight, self.bias)
+
+
 class MaskedPolicy(nn.Module):
     """A network behind a fixed multiplicative observation mask.
 
@@ -138,14 +154,31 @@ def export_policy(
     if mask_tensor.numel() != input_dim:
         raise ValueError(f"mask has {mask_tensor.numel()} elements; the network takes {input_dim}")
     exported = copy.deepcopy(network).cpu().eval().requires_grad_(False)
+    for name, child in list(exported.named_children()):
+        if isinstance(child, nn.Linear):
+            setattr(exported, name, _ExportLinear(child))
     # Saving to memory first keeps the archive's inner folder name fixed ("archive", not the
     # temporary file's name), so the same weights always give byte-identical files.
     buffer = io.BytesIO()
     with _torchscript_without_deprecation_warnings():
         torch.jit.save(torch.jit.script(MaskedPolicy(exported, mask_tensor)), buffer)
     with temporary_path_for(path) as temporary:
-        temporary.write_bytes(buffer.getvalue())
+        temporary.write_bytes(_without_debug_sources(buffer.getvalue()))
     return Path(path)
+
+
+def _without_debug_sources(archive: bytes) -> bytes:
+    """Drop the ``*.debug_pkl`` entries of a TorchScript archive. They map the code to
+    source lines and contain the absolute path of this file, so two checkouts in different
+    folders would write different bytes; ``torch.jit.load`` does not need them (an error
+    inside a loaded model just reports no Python source line)."""
+    source = zipfile.ZipFile(io.BytesIO(archive))
+    output = io.BytesIO()
+    with zipfile.ZipFile(output, "w", zipfile.ZIP_STORED) as stripped:
+        for entry in source.infolist():
+            if not entry.filename.endswith(".debug_pkl"):
+                stripped.writestr(entry, source.read(entry.filename))
+    return output.getvalue()
 
 
 def load_policy(path: str | Path) -> torch.jit.ScriptModule:

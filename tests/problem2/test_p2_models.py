@@ -119,3 +119,17 @@ def test_load_policy_names_a_missing_or_corrupt_file(tmp_path: Path) -> None:
     truncated.write_bytes(truncated.read_bytes()[:200])
     with pytest.raises(ValueError, match="truncated.pt"):
         load_policy(truncated)
+
+
+def test_export_is_byte_reproducible_and_free_of_local_paths(tmp_path: Path) -> None:
+    torch.manual_seed(3)
+    network = AgentDQN()
+    first, second = tmp_path / "first.pt", tmp_path / "second.pt"
+    export_policy(network, "comm", first)
+    export_policy(network, "comm", second)
+    assert first.read_bytes() == second.read_bytes()
+    assert str(Path(__file__).resolve().parents[2]).encode() not in first.read_bytes()
+    obs = torch.rand(4, 11)
+    q_values, _ = load_policy(first)(obs)
+    expected, _ = network(obs * torch.tensor([1.0] * 10 + [0.0]))
+    torch.testing.assert_close(q_values, expected)

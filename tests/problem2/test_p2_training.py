@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from baselines import evaluate_policy, random_policy
 from models import AgentDQN, DuelingDQN
 from multi_agent_env import MultiAgentEnv, load_map
 from paired_networks import PairedQNetworks
@@ -251,52 +252,41 @@ def test_exported_models_reproduce_the_trainer_and_carry_their_mask(tmp_path: Pa
 
 
 def test_same_seed_same_logs_and_models_in_parallel_and_in_sequence(tmp_path: Path) -> None:
+    """A seed fixes a run, whichever process runs it. (Model files are compared by their
+    weights: this test process has compiled other TorchScript types before, which renames
+    the classes inside a file; a fresh process writes the same bytes every time.)"""
     args = [*TINY, "--mode", "comm", "--seeds", "3", "4"]
     train.main([*args, "--workers", "2", "--output_dir", str(tmp_path / "a")])
     train.main([*args, "--workers", "1", "--output_dir", str(tmp_path / "b")])
     for seed in (3, 4):
         for name in (
             f"training_logs/comm_seed{seed}.csv",
-            f"agent_models/comm_seed{seed}_agent_A.pt",
             f"training_logs/comm_seed{seed}_final.json",
         ):
             assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
+        for agent in "AB":
+            name = f"agent_models/comm_seed{seed}_agent_{agent}.pt"
+            weights = [jit_load(tmp_path / run / name).state_dict() for run in "ab"]
+            assert weights[0].keys() == weights[1].keys()
+            for key in weights[0]:
+                assert torch.equal(weights[0][key], weights[1][key]), key
     logs = [(tmp_path / "a" / f"training_logs/comm_seed{s}.csv").read_text() for s in (3, 4)]
     assert logs[0] != logs[1]
 
 
 def test_full_agents_learn_on_a_small_map() -> None:
-    """A 5 x 5 map, 30 k env steps: far above the random policy's success rate (about 3 %).
+    """A 5 x 5 map, 30 k env steps (about 15 s): far above the random policy (about 3 %).
 
-    The run is deterministic on one machine (0.52 here at ε = 0.05); the bar leaves room
-    for another CPU's floating-point differences to change the trajectory."""
-    cfg = parse_config(
-        [
-            "--mode",
-            "full",
-            "--grid_size",
-            "5",
-            "--map_seed",
-            "3",
-            "--total_steps",
-            "30000",
-            "--learning_starts",
-            "2000",
-            "--eval_interval",
-            "100000",
-            "--epsilon_decay",
-            "0.6",
-            "--batch_size",
-            "128",
-        ]
+    The run is deterministic on one machine (0.93 here at ε = 0.05, 0.80 greedy); the bar
+    leaves room for another CPU's floating-point rounding to change the trajectory."""
+    flags = "--mode full --grid_size 5 --map_seed 3 --total_steps 30000 --num_envs 32"
+    flags += " --learning_starts 2000 --eval_interval 5000 --epsilon_decay 0.6 --batch_size 128"
+    trainer = train.MultiAgentTrainer(
+        MultiAgentEnv(grid_size=(5, 5), seed=3), parse_config(flags.split())
     )
-    env = MultiAgentEnv(grid_size=(5, 5), seed=3)
-    trainer = train.MultiAgentTrainer(env, cfg)
     trainer.train()
     _, success = trainer.evaluate(num_episodes=500, epsilon=0.05)
-    from baselines import evaluate_policy, random_policy
-
     random_success = evaluate_policy(trainer._make_env(500, None), random_policy(0), 500)[
         "success_rate"
     ]
-    assert success >= 0.3 and success >= 5 * random_success, (success, random_success)
+    assert success >= 0.5 and success >= 5 * random_success, (success, random_success)
