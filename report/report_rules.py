@@ -203,7 +203,9 @@ def message_effect(difference: float, ci: Sequence[float]) -> tuple[str, str]:
         )
     if high < 0:
         return "hurts", (
-            f"success is higher with a foreign message ({span}): the real message misleads"
+            f"success is higher with a message from another episode ({span}): the real "
+            "message's content does not help, and a foreign message, uncorrelated with the "
+            "situation, seems to act as noise that breaks the deterministic policy's loops"
         )
     return "none", (
         f"real minus shuffled success is {span}, an interval that includes zero: no evidence "
