@@ -101,8 +101,10 @@ class TrainConfig:
     def validate(self) -> TrainConfig:
         """Raise ValueError naming the first invalid setting; return self."""
         checks = [
-            (self.mode == "all" or set(self.mode.split(",")) <= set(MODES),
-             f"mode must be all or a comma-separated list of {MODES}"),
+            (
+                self.mode == "all" or set(self.mode.split(",")) <= set(MODES),
+                f"mode must be all or a comma-separated list of {MODES}",
+            ),
             (
                 self.reward_mode in ("arrival", "per_step"),
                 "reward_mode must be arrival or per_step",

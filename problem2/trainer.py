@@ -168,8 +168,11 @@ class MultiAgentTrainer:
     def _progress(self) -> float:
         """Fraction of the training budget spent, in [0, 1]."""
         cfg = self.cfg
-        spent = self.episodes / cfg.num_episodes if cfg.num_episodes > 0 else (
-            self.env_steps / cfg.total_steps)
+        spent = (
+            self.episodes / cfg.num_episodes
+            if cfg.num_episodes > 0
+            else (self.env_steps / cfg.total_steps)
+        )
         return min(1.0, spent)
 
     def epsilon(self) -> float:
