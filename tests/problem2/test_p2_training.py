@@ -290,3 +290,13 @@ def test_full_agents_learn_on_a_small_map() -> None:
         "success_rate"
     ]
     assert success >= 0.5 and success >= 5 * random_success, (success, random_success)
+
+
+def test_dueling_and_prioritized_variants_train() -> None:
+    trainer = filled_trainer("full", "--dueling", "--prioritized")
+    assert isinstance(trainer.network_A, DuelingDQN)
+    priorities_before = trainer.buffer._tree.values(np.arange(len(trainer.buffer))).copy()
+    for _ in range(3):
+        assert np.isfinite(trainer.update_networks(32))
+    priorities_after = trainer.buffer._tree.values(np.arange(len(trainer.buffer)))
+    assert not np.array_equal(priorities_before, priorities_after)  # TD errors fed back
