@@ -24,9 +24,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 from _atomic import temporary_path_for, write_json_atomic
+from baselines import run_episodes, summarize
 from matplotlib.figure import Figure
-from train_config import MODES, TrainConfig
+from models import export_policy
+from multi_agent_env import MultiAgentEnv, generate_map, save_map
+from train_config import TrainConfig
+from trainer import EVAL_EPSILON, EVAL_SEED, MultiAgentTrainer
 
 PROBLEM2 = Path(__file__).resolve().parent
 MODE_COLOURS = {"independent": "#1b9e77", "comm": "#d95f02", "full": "#7570b3"}
@@ -60,11 +65,6 @@ def read_csv(path: Path) -> list[dict[str, float]]:
 
 def train_one(cfg: TrainConfig, mode: str, seed: int, progress_queue: Any = None) -> dict:
     """Train one (mode, seed), save its models, log and final evaluation; return the latter."""
-    import torch
-    from baselines import run_episodes
-    from multi_agent_env import MultiAgentEnv
-    from trainer import EVAL_EPSILON, EVAL_SEED, MultiAgentTrainer
-
     torch.set_num_threads(1)
     run_cfg = TrainConfig(**{**cfg.to_dict(), "mode": mode, "seed": seed, "seeds": []})
     env = MultiAgentEnv(
@@ -102,9 +102,7 @@ def train_one(cfg: TrainConfig, mode: str, seed: int, progress_queue: Any = None
     return final
 
 
-def save_models(trainer: Any, models_dir: Path, name: str) -> None:
-    from models import export_policy
-
+def save_models(trainer: MultiAgentTrainer, models_dir: Path, name: str) -> None:
     for index, agent in enumerate("AB"):
         export_policy(
             trainer.online.agent(index), trainer.mode, models_dir / f"{name}_agent_{agent}.pt"
@@ -115,8 +113,6 @@ def episode_statistics(episodes: Any, target: tuple[int, int]) -> dict[str, Any]
     """Success, steps and return of recorded episodes, plus the parking statistics: the share
     of steps with exactly one agent on the target, and the share of episodes in which one
     agent reached the target and the other never did."""
-    from baselines import summarize
-
     summary = summarize(episodes)
     positions = episodes.trajectories["positions"][:, 1:]  # (E, T, 2, 2) after each step
     on_target = np.all(positions == np.array(target), axis=-1)  # (E, T, 2)
@@ -130,8 +126,6 @@ def episode_statistics(episodes: Any, target: tuple[int, int]) -> dict[str, Any]
 
 def run_experiments(cfg: TrainConfig) -> list[dict[str, Any]]:
     """Train every (mode, seed) of ``cfg`` in ``cfg.workers`` processes and write all outputs."""
-    from multi_agent_env import generate_map, save_map
-
     models_dir, logs_dir = output_paths(cfg)
     models_dir.mkdir(parents=True, exist_ok=True)
     logs_dir.mkdir(parents=True, exist_ok=True)
@@ -258,4 +252,4 @@ def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], tit
     return path
 
 
-__all__ = ["MODES", "run_experiments", "train_one", "plot_training_curves"]
+__all__ = ["plot_training_curves", "run_experiments", "train_one"]

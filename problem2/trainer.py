@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import copy
 import math
-import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, fields
@@ -387,22 +386,3 @@ class MultiAgentTrainer:
             with torch.no_grad():
                 self.online.flat.copy_(self._best_weights)
         return self.log
-
-
-def progress_printer(tag: str, total_steps: int) -> Callable[[dict[str, Any]], None]:
-    """A progress callback that rewrites one terminal line: steps, ε, success, speed, ETA."""
-    start = time.perf_counter()
-
-    def report(row: dict[str, Any]) -> None:
-        elapsed = time.perf_counter() - start
-        rate = row["env_steps"] / elapsed if elapsed > 0 else 0.0
-        eta = (total_steps - row["env_steps"]) / rate if rate > 0 else math.nan
-        print(
-            f"\r{tag}: {row['env_steps']:>8,d}/{total_steps:,d} steps  {row['episodes']:>6d} ep  "
-            f"ε {row['epsilon']:.2f}  success greedy {row['eval_success_greedy']:.2f} "
-            f"ε=0.05 {row['eval_success_eps']:.2f}  {rate:,.0f} steps/s  ETA {eta:4.0f}s",
-            end="",
-            flush=True,
-        )
-
-    return report
