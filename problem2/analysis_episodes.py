@@ -2,8 +2,8 @@
 two TorchScript models, the message perturbations of the causal test, per-episode
 summaries and the classification of failed episodes.
 
-Every policy here has the ``baselines.PolicyFn`` signature, so random, oracle and trained
-policies all run through :func:`baselines.run_episodes`.
+Every policy here has the ``rollout.PolicyFn`` signature, so random, oracle and trained
+policies all run through :func:`rollout.run_episodes`.
 """
 
 from __future__ import annotations
@@ -12,11 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from baselines import EpisodeResults, PolicyFn, run_episodes, summarize
 from models import MESSAGE_INDEX
 from multi_agent_env import NUM_ACTIONS, VectorMultiAgentEnv
+from rollout import EVAL_SEED, EpisodeResults, PolicyFn, run_episodes, summarize
 
-EVAL_SEED = 7_000_000  # the test episodes (the trainer's final evaluation uses the same)
 MAX_BATCH = 5_000  # episodes stepped together; more run in rounds
 MESSAGE_CONDITIONS = ("real", "shuffled", "zeroed")
 FAILURE_KINDS = ("swapping", "parked", "looping", "other")
@@ -87,7 +86,7 @@ def perturb_messages(
     policy_fn: PolicyFn, env: VectorMultiAgentEnv, condition: str, seed: int = EVAL_SEED + 1
 ) -> PolicyFn:
     """Wrap ``policy_fn`` so that it receives a changed incoming message (element 9) and
-    nothing else changed; ``env`` must be the environment :func:`baselines.run_episodes`
+    nothing else changed; ``env`` must be the environment :func:`rollout.run_episodes`
     steps, which runs all copies in step with each other.
 
     * ``"shuffled"``: at each step, every running episode receives, per agent, the message
@@ -199,7 +198,7 @@ def failure_shares(
 def episode_summary(
     results: EpisodeResults, target: tuple[int, int], epsilon: float | None = None
 ) -> dict:
-    """:func:`baselines.summarize` plus the exploration rate and, if the episodes were
+    """:func:`rollout.summarize` plus the exploration rate and, if the episodes were
     recorded, the failure shares."""
     summary: dict = summarize(results)
     if epsilon is not None:

@@ -10,7 +10,6 @@ from typing import Any
 import numpy as np
 import torch
 from analysis_episodes import (
-    EVAL_SEED,
     MESSAGE_CONDITIONS,
     EvaluationSetting,
     episode_summary,
@@ -22,11 +21,11 @@ from analysis_messages import mean_message_per_cell, message_correlations, messa
 from analysis_plots import plot_message_heatmap, plot_trajectories
 from analysis_stats import paired_difference
 from analysis_traces import representative_traces
-from baselines import EpisodeResults, PolicyFn, oracle_policy, run_episodes, summarize
+from baselines import oracle_policy
 from grid_maps import ACTION_NAMES, generate_map
 from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
+from rollout import EVAL_EPSILON, EVAL_SEED, EpisodeResults, PolicyFn, run_episodes, summarize
 
-EVAL_EPSILON = 0.05
 GENERALIZATION_MAP_SEEDS = tuple(range(10))
 PolicyFactory = Callable[[np.ndarray], PolicyFn]  # map (H, W) -> greedy policy on that map
 
@@ -40,7 +39,7 @@ class MultiAgentEvaluator:
         model_A, model_B: modules mapping raw observations [B, 11] to (Q-values [B, 5],
             message [B, 1]), e.g. from :func:`load_trained_models`.
         policy_factory: instead of models, a function from a map (H, W) to a greedy
-            ``baselines.PolicyFn`` (e.g. ``baselines.oracle_policy``).
+            ``rollout.PolicyFn`` (e.g. ``baselines.oracle_policy``).
         epsilon: exploration rate of the ε-greedy condition (the other is greedy).
         seed: seed of the test episodes' start cells and of the exploration stream.
     """

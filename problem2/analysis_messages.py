@@ -1,12 +1,12 @@
 """What the learned message says: its distribution per agent, its correlation with what the
 sender sees and where it stands, and its mean per grid cell. All functions read recorded
-episodes (``baselines.EpisodeResults`` with trajectories)."""
+episodes (``rollout.EpisodeResults`` with trajectories)."""
 
 from __future__ import annotations
 
 import numpy as np
-from baselines import EpisodeResults
 from grid_maps import TARGET, target_distances
+from rollout import EpisodeResults
 
 AGENTS = ("A", "B")
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)

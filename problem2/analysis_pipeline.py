@@ -18,7 +18,6 @@ from typing import Any
 import numpy as np
 from _atomic import write_json_atomic
 from analysis_episodes import (
-    EVAL_SEED,
     FAILURE_KINDS,
     FAILURE_WINDOW,
     LOOP_CELLS,
@@ -38,9 +37,10 @@ from analysis_report import create_evaluation_report
 from analysis_runs import Experiment, best_seed, load_model_pair
 from analysis_stats import BOOTSTRAP_RESAMPLES, seed_statistics
 from analysis_traces import representative_traces
-from baselines import EpisodeResults, oracle_policy, random_policy, summarize
+from baselines import oracle_policy, random_policy
 from grid_maps import generate_map
 from multi_agent_env import MultiAgentEnv
+from rollout import EVAL_SEED, EpisodeResults, summarize
 
 CONDITIONS = ("greedy", "eps")
 FAILURE_DEFINITIONS = {

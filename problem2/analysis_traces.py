@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from analysis_episodes import FAILURE_KINDS, classify_failures
-from baselines import EpisodeResults
+from rollout import EpisodeResults
 
 
 @dataclass

@@ -1,7 +1,5 @@
-"""Reference policies for problem 2 and the episode loop every evaluation shares.
+"""Reference policies for problem 2 (they run through ``rollout.run_episodes`` like the agents).
 
-* :func:`run_episodes` / :func:`evaluate_policy` run any policy on a vectorised
-  environment, many episodes at once; trained networks are evaluated with the same code.
 * :func:`random_policy`: uniform random actions and messages.
 * :func:`oracle_policy`: full information; each agent follows a shortest path to the
   target (breadth-first distances) and the first to arrive waits there.
@@ -13,9 +11,6 @@ prints a table and writes ``results/evaluation_results/baselines.json``.
 from __future__ import annotations
 
 import argparse
-import math
-from collections.abc import Callable
-from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
@@ -23,132 +18,10 @@ import numpy as np
 from _atomic import write_json_atomic
 from grid_maps import ACTION_DELTAS, DEFAULT_MAP_SEED, OBSTACLE, generate_map, target_distances
 from multi_agent_env import REWARD_MODES, VectorMultiAgentEnv
-
-# (observations (N, 2, obs_dim), positions (N, 2, 2)) -> (actions (N, 2), messages (N, 2))
-PolicyFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+from rollout import EVAL_SEED, PolicyFn, evaluate_policy
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results" / "evaluation_results"
 MAP_SEEDS = (DEFAULT_MAP_SEED, 0, 1, 2, 3, 4)
-EVALUATION_SEED = 2024
-
-
-@dataclass
-class EpisodeResults:
-    """Per-episode outcomes (E,) and, if recorded, trajectories padded to max_steps T.
-
-    ``trajectories``: positions (E, T + 1, 2, 2) and observations (E, T + 1, 2, obs_dim)
-    before each step and after the last (held after the episode ends); actions (E, T, 2)
-    (-1 after the end), messages sent (E, T, 2) (NaN after), rewards (E, T) (0 after).
-    """
-
-    returns: np.ndarray
-    successes: np.ndarray
-    lengths: np.ndarray
-    trajectories: dict[str, np.ndarray] | None = None
-
-
-def run_episodes(
-    env: VectorMultiAgentEnv,
-    policy_fn: PolicyFn,
-    num_episodes: int,
-    seed: int | None = None,
-    record: bool = False,
-) -> EpisodeResults:
-    """Run ``num_episodes`` episodes of ``policy_fn`` in rounds of ``env.n_envs``.
-
-    Each round resets every copy together, so at loop step t every unfinished episode is
-    at its step t (a policy wrapper may rely on this, e.g. to swap messages between
-    episodes). Copies that finish are ignored for the rest of the round. The first round
-    resets with ``seed``, later rounds continue its stream: results are reproducible.
-    Success means both agents on the target within ``env.max_steps`` steps.
-    """
-    if not env.auto_reset:
-        raise ValueError("run_episodes needs an environment built with auto_reset=True")
-    if num_episodes < 1:
-        raise ValueError(f"num_episodes must be positive, got {num_episodes}")
-    rounds = [
-        _run_round(env, policy_fn, seed if i == 0 else None, record)
-        for i in range(math.ceil(num_episodes / env.n_envs))
-    ]
-    joined = {key: np.concatenate([r[key] for r in rounds])[:num_episodes] for key in rounds[0]}
-    outcomes = {key: joined.pop(key) for key in ("returns", "successes", "lengths")}
-    return EpisodeResults(**outcomes, trajectories=joined if record else None)
-
-
-def _run_round(
-    env: VectorMultiAgentEnv, policy_fn: PolicyFn, seed: int | None, record: bool
-) -> dict[str, np.ndarray]:
-    n, horizon = env.n_envs, env.max_steps
-    obs = env.reset(seed=seed)
-    active = np.ones(n, dtype=bool)
-    result = {
-        "returns": np.zeros(n),
-        "successes": np.zeros(n, dtype=bool),
-        "lengths": np.zeros(n, dtype=np.int64),
-    }
-    if record:
-        result |= {
-            "positions": np.zeros((n, horizon + 1, 2, 2), dtype=np.int64),
-            "observations": np.zeros((n, horizon + 1, 2, env.obs_dim), dtype=np.float32),
-            "actions": np.full((n, horizon, 2), -1, dtype=np.int64),
-            "messages": np.full((n, horizon, 2), np.nan, dtype=np.float32),
-            "rewards": np.zeros((n, horizon), dtype=np.float32),
-        }
-        result["positions"][:, 0], result["observations"][:, 0] = env.positions, obs
-    for t in range(horizon):
-        actions, messages = policy_fn(obs, env.positions)
-        obs, rewards, terminated, truncated, info = env.step(actions, messages)
-        result["returns"] += np.where(active, rewards, 0.0)
-        if record:
-            _record_step(result, t, active, actions, messages, rewards, info)
-        finished = active & (terminated | truncated)
-        result["successes"][finished] = terminated[finished]
-        result["lengths"][finished] = info["steps"][finished]
-        active &= ~finished
-        if not active.any():
-            break
-    return result
-
-
-def _record_step(
-    log: dict[str, np.ndarray],
-    t: int,
-    active: np.ndarray,
-    actions: np.ndarray,
-    messages: np.ndarray,
-    rewards: np.ndarray,
-    info: dict,
-) -> None:
-    rows = np.flatnonzero(active)
-    log["actions"][rows, t] = actions[rows]
-    log["messages"][rows, t] = messages[rows]
-    log["rewards"][rows, t] = rewards[rows]
-    for key, new in (("positions", info["positions"]), ("observations", info["final_obs"])):
-        log[key][:, t + 1] = log[key][:, t]  # hold the last state after the episode ends
-        log[key][rows, t + 1] = new[rows]
-
-
-def summarize(results: EpisodeResults) -> dict[str, float | int | None]:
-    """Success rate, mean steps of the successful episodes (None if none), mean return."""
-    successes = results.successes
-    return {
-        "episodes": len(successes),
-        "success_rate": float(successes.mean()),
-        "mean_steps_to_success": float(results.lengths[successes].mean())
-        if successes.any()
-        else None,
-        "mean_return": float(results.returns.mean()),
-    }
-
-
-def evaluate_policy(
-    env: VectorMultiAgentEnv,
-    policy_fn: PolicyFn,
-    num_episodes: int = 1000,
-    seed: int | None = EVALUATION_SEED,
-) -> dict[str, float | int | None]:
-    """:func:`run_episodes` then :func:`summarize`."""
-    return summarize(run_episodes(env, policy_fn, num_episodes, seed))
 
 
 def random_policy(seed: int | None = None) -> PolicyFn:
@@ -188,7 +61,7 @@ def oracle_policy(grid: np.ndarray) -> PolicyFn:
 
 
 def evaluate_baselines(
-    num_episodes: int = 1000, map_seeds: tuple[int, ...] = MAP_SEEDS, seed: int = EVALUATION_SEED
+    num_episodes: int = 1000, map_seeds: tuple[int, ...] = MAP_SEEDS, seed: int = EVAL_SEED
 ) -> dict:
     """Random and oracle policies on each map, under both reward modes (the episodes and
     so success and steps are the same in both; only the return differs)."""
@@ -238,7 +111,7 @@ def format_table(results: dict) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--episodes", type=int, default=1000)
-    parser.add_argument("--seed", type=int, default=EVALUATION_SEED)
+    parser.add_argument("--seed", type=int, default=EVAL_SEED)
     parser.add_argument("--output", type=Path, default=RESULTS_DIR / "baselines.json")
     args = parser.parse_args()
     results = evaluate_baselines(args.episodes, seed=args.seed)

@@ -27,11 +27,12 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from analysis_evaluator import EVAL_EPSILON, MultiAgentEvaluator
+from analysis_evaluator import MultiAgentEvaluator
 from analysis_pipeline import evaluate_all, write_outputs
 from analysis_report import create_evaluation_report, format_report
 from analysis_runs import DEFAULT_ROOT, discover_experiments, load_model_pair
 from multi_agent_env import MultiAgentEnv
+from rollout import EVAL_EPSILON
 
 __all__ = ["MultiAgentEvaluator", "create_evaluation_report", "load_trained_models", "main"]
 

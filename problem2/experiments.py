@@ -26,12 +26,12 @@ from typing import Any
 import numpy as np
 import torch
 from _atomic import temporary_path_for, write_json_atomic
-from baselines import run_episodes, summarize
 from matplotlib.figure import Figure
 from models import export_policy
 from multi_agent_env import MultiAgentEnv, generate_map, save_map
+from rollout import EVAL_EPSILON, EVAL_SEED, run_episodes, summarize
 from train_config import TrainConfig
-from trainer import EVAL_EPSILON, EVAL_SEED, MultiAgentTrainer
+from trainer import MultiAgentTrainer
 
 PROBLEM2 = Path(__file__).resolve().parent
 MODE_COLOURS = {"independent": "#1b9e77", "comm": "#d95f02", "full": "#7570b3"}

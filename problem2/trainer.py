@@ -22,16 +22,13 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-from baselines import PolicyFn, evaluate_policy
 from models import MESSAGE_INDEX, observation_mask
 from multi_agent_env import NUM_ACTIONS, MultiAgentEnv, VectorMultiAgentEnv
 from paired_networks import PairedQNetworks
 from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
+from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED, PolicyFn, evaluate_policy
 from train_config import TrainConfig
 
-EVAL_EPSILON = 0.05  # evaluation is reported greedy and at this exploration rate
-EVAL_SEED = 7_000_000  # fixed test episodes of the final evaluation
-VALIDATION_SEED = 6_000_000  # other fixed episodes, for the periodic evaluations during training
 _TORCH_MASKS: dict[str, torch.Tensor] = {}
 
 
@@ -159,7 +156,7 @@ class MultiAgentTrainer:
         return action, float(comm.item())
 
     def policy(self, epsilon: float = 0.0, seed: int = EVAL_SEED) -> PolicyFn:
-        """The current greedy/ε-greedy policy as a function for :func:`baselines.run_episodes`."""
+        """The current greedy/ε-greedy policy as a function for :func:`rollout.run_episodes`."""
         rng = np.random.default_rng(seed)
         return lambda obs, positions: self._act(obs, epsilon, rng, noisy_messages=False)
 

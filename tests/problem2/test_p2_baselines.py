@@ -11,15 +11,14 @@ import pytest
 from baselines import (
     MAP_SEEDS,
     evaluate_baselines,
-    evaluate_policy,
     format_table,
     main,
     oracle_policy,
     random_policy,
-    run_episodes,
     shortest_path_actions,
 )
 from multi_agent_env import ACTION_DELTAS, VectorMultiAgentEnv, generate_map, target_distances
+from rollout import evaluate_policy, run_episodes
 
 
 @pytest.mark.parametrize("map_seed", MAP_SEEDS)

@@ -14,10 +14,11 @@ from analysis_episodes import (
     with_exploration,
 )
 from analysis_stats import bootstrap_ci, interquartile_mean, seed_statistics
-from baselines import EpisodeResults, oracle_policy, random_policy, run_episodes
+from baselines import oracle_policy, random_policy
 from evaluate import MultiAgentEvaluator
 from models import MESSAGE_INDEX
 from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv, generate_map
+from rollout import EpisodeResults, run_episodes
 
 from tests.conftest import PROBLEM2
 

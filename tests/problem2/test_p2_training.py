@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from baselines import evaluate_policy, random_policy
+from baselines import random_policy
 from models import AgentDQN, DuelingDQN
 from multi_agent_env import MultiAgentEnv, load_map
 from paired_networks import PairedQNetworks
+from rollout import evaluate_policy
 from train_config import TrainConfig, build_parser, field_docs, parse_config
 
 from tests.conftest import load_problem_module
