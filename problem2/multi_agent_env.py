@@ -59,7 +59,7 @@ __all__ = [
 BOTH_ON_TARGET_REWARD = 10.0
 ARRIVAL_REWARD = 2.0
 STEP_REWARD = -0.1
-REWARD_MODES = ("arrival", "per_step")
+REWARD_MODES = ("per_step", "arrival")  # the first is the default: the assignment's table
 MAX_TABULATED_CELLS = 4096  # padded cells; the (P, P) float32 table is then ≤ 64 MiB
 
 
@@ -78,15 +78,14 @@ class VectorMultiAgentEnv:
     and used instead, its shape replacing ``grid_size``) and, through a separate stream
     spawned with ``np.random.SeedSequence``, the agents' start cells.
 
-    Team reward of a step (both modes): if both agents stand on the target, exactly
-    ``+10`` and the episode terminates. Otherwise the sum of two per-agent parts, each
-    ``+2`` if that agent earns the bonus this step and ``-0.1`` if not:
-      * ``reward_mode="arrival"`` (default): an agent earns the bonus on the step it
-        first reaches the target in this episode; leaving and coming back pays nothing.
-      * ``reward_mode="per_step"`` (the literal reading): an agent earns the bonus on
-        every step it stands on the target.
-    So a step pays -0.2 (no bonus), 1.9 (one bonus: 2 - 0.1) or 10 (both on the target,
-    including both arriving on the same step) in either mode.
+    One team reward per step (never a per-agent sum):
+      * ``reward_mode="per_step"`` (default, the assignment's table): +10 when both agents
+        stand on the target (the episode terminates), +2 on every step on which exactly one
+        agent stands on it, -0.1 otherwise.
+      * ``reward_mode="arrival"`` (the shaped reward the trainer learns from): +10 when both
+        stand on the target (terminates), +2 on a step on which an agent reaches the target
+        for the first time in the episode, -0.1 otherwise. Leaving and coming back pays
+        nothing; an agent placed on the target at the start has already "arrived".
     ``truncated`` is set when ``max_steps`` steps pass without termination.
     """
 
@@ -97,7 +96,7 @@ class VectorMultiAgentEnv:
         obs_window: int = 3,
         max_steps: int = 50,
         seed: int | None = None,
-        reward_mode: str = "arrival",
+        reward_mode: str = "per_step",
         grid: np.ndarray | None = None,
         auto_reset: bool = True,
     ) -> None:
@@ -156,6 +155,21 @@ class VectorMultiAgentEnv:
     def _to_flat(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         return (np.asarray(rows) + self._pad) * self._padded_cols + np.asarray(cols) + self._pad
 
+    def _check_cells(self, positions: object, name: str) -> np.ndarray:
+        """``positions`` (N, 2, 2) integer (row, col) cells inside the grid, not obstacles."""
+        positions = np.asarray(positions)
+        if positions.shape != (self.n_envs, 2, 2) or positions.dtype.kind not in "iu":
+            raise ValueError(
+                f"{name} must be integers of shape ({self.n_envs}, 2, 2), "
+                f"got {positions.dtype} {positions.shape}"
+            )
+        if not self.is_passable(positions[..., 0], positions[..., 1]).all():
+            raise ValueError(
+                f"{name} must be cells inside the {self.grid_size[0]}x{self.grid_size[1]} grid "
+                f"and not obstacles, got {positions.tolist()}"
+            )
+        return self._to_flat(positions[..., 0], positions[..., 1])
+
     # ----------------------------------------------------------------------------- state
     @property
     def positions(self) -> np.ndarray:
@@ -164,6 +178,19 @@ class VectorMultiAgentEnv:
 
     def _rows_cols(self, flat: np.ndarray) -> np.ndarray:
         return np.take(self._row_col, flat, axis=0)  # np.take: faster than fancy indexing
+
+    @positions.setter
+    def positions(self, positions: np.ndarray) -> None:
+        """Move the agents by hand to (N, 2, 2) cells (inside the grid, not obstacles); the
+        episode goes on from there (step count and messages kept). An agent placed on the
+        target counts as having reached it (no arrival bonus for that)."""
+        self._flat = self._check_cells(positions, "positions")
+        self._visited |= self._flat == self._target_flat
+
+    @property
+    def messages(self) -> np.ndarray:
+        """Last messages sent (N, 2) float32: [:, 0] by A, [:, 1] by B."""
+        return self._messages.copy()
 
     @property
     def steps(self) -> np.ndarray:
@@ -192,6 +219,16 @@ class VectorMultiAgentEnv:
         """New flat positions, same shape as ``flat``; blocked moves stay in place."""
         proposed = flat + np.take(self._move_offsets, actions)
         return np.where(np.take(self._passable, proposed), proposed, flat)
+
+    def next_cells(self, rows: np.ndarray, cols: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """Cells (..., 2) reached from passable cells ``(rows, cols)`` by ``actions`` (same
+        shape, ints 0..4); a move into a wall or an obstacle stays in place."""
+        actions = np.asarray(actions)
+        if actions.dtype.kind not in "iu" or (actions < 0).any() or (actions >= NUM_ACTIONS).any():
+            raise ValueError(f"actions must be integers in 0..{NUM_ACTIONS - 1}, got {actions}")
+        if not self.is_passable(rows, cols).all():
+            raise ValueError("cells must be inside the grid and not obstacles")
+        return self._rows_cols(self._move(self._to_flat(rows, cols), actions))
 
     def _observe(self, flat: np.ndarray, messages: np.ndarray) -> np.ndarray:
         """Observations (n, 2, obs_dim) float32 from flat positions and sent messages (n, 2)."""
@@ -239,21 +276,14 @@ class VectorMultiAgentEnv:
             self._rng = np.random.default_rng(seed)
         flat = None
         if positions is not None:
-            positions = np.asarray(positions)
-            if positions.shape != (self.n_envs, 2, 2) or positions.dtype.kind not in "iu":
-                raise ValueError(
-                    f"positions must be integers of shape ({self.n_envs}, 2, 2), "
-                    f"got {positions.dtype} {positions.shape}"
-                )
-            if not self.is_passable(positions[..., 0], positions[..., 1]).all():
-                raise ValueError("positions must be inside the grid and not on an obstacle")
-            flat = self._to_flat(positions[..., 0], positions[..., 1])
+            flat = self._check_cells(positions, "positions")
             if (flat == self._target_flat).all(axis=1).any():
                 raise ValueError("both agents start on the target: the episode would be over")
         self._start_episodes(np.arange(self.n_envs), flat)
         return self.current_observations()
 
-    def _check_actions(self, actions: np.ndarray) -> np.ndarray:
+    def check_actions(self, actions: np.ndarray) -> np.ndarray:
+        """``actions`` as an (N, 2) integer array in 0..4, or ValueError."""
         actions = np.asarray(actions)
         if actions.shape != (self.n_envs, 2):
             raise ValueError(f"actions must have shape ({self.n_envs}, 2), got {actions.shape}")
@@ -265,42 +295,35 @@ class VectorMultiAgentEnv:
         return actions
 
     def _check_messages(self, messages: np.ndarray) -> np.ndarray:
-        """Messages outside [0, 1] are refused (ValueError), not clipped; so are NaN, inf."""
+        """Finite numbers, clipped into [0, 1] (the channel is bounded); NaN, inf or a
+        non-number raises ValueError."""
         messages = np.asarray(messages)
         if messages.shape != (self.n_envs, 2) or messages.dtype.kind not in "fiub":
             raise ValueError(
                 f"messages must be numbers of shape ({self.n_envs}, 2), "
                 f"got {messages.dtype} {messages.shape}"
             )
-        if not (messages.min() >= 0 and messages.max() <= 1):  # False for NaN too
-            if not np.isfinite(messages).all():
-                raise ValueError("messages must be finite numbers in [0, 1]; got NaN or inf")
-            bad = messages[(messages < 0) | (messages > 1)]
-            raise ValueError(f"messages must lie in [0, 1] (refused, not clipped); got {bad}")
-        return np.array(messages, dtype=np.float32)
+        if not np.isfinite(messages).all():
+            raise ValueError(
+                f"messages must be finite numbers (clipped into [0, 1]), got {messages}"
+            )
+        return np.clip(messages, 0.0, 1.0).astype(np.float32)
 
     def step(
         self, actions: np.ndarray, messages: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """Advance every copy one step.
 
-        Args: ``actions`` (N, 2) ints in 0..4; ``messages`` (N, 2) numbers in [0, 1], the
-        message each agent sends now (its partner reads it in the returned observation).
-        Returns ``(obs (N, 2, obs_dim) float32, rewards (N,) float32, terminated (N,) bool,
-        truncated (N,) bool, info)``. With ``auto_reset`` the copies that finished start a
-        new episode and ``obs`` holds its first observation; ``info`` describes the state
-        before that reset: ``final_obs`` (N, 2, obs_dim), ``positions`` (N, 2, 2),
-        ``on_target`` (N, 2) bool, ``steps`` (N,) steps taken in the episode. Without
-        ``auto_reset``, stepping after a copy finished raises ValueError.
+        Args: ``actions`` (N, 2) ints in 0..4; ``messages`` (N, 2) finite numbers, clipped
+        into [0, 1], the message each agent sends now (its partner reads it in the returned
+        observation). Returns ``(obs (N, 2, obs_dim) float32, rewards (N,) float64,
+        terminated (N,) bool, truncated (N,) bool, info)``. With ``auto_reset`` the copies
+        that finished start a new episode and ``obs`` holds its first observation; ``info``
+        describes the state before that reset: ``final_obs`` (N, 2, obs_dim), ``positions``
+        (N, 2, 2), ``on_target`` (N, 2) bool, ``steps`` (N,) steps taken in the episode.
+        Without ``auto_reset``, stepping after a copy finished raises ValueError.
         """
-        obs, rewards, terminated, truncated, info = self._step(actions, messages)
-        return obs, rewards.astype(np.float32), terminated, truncated, info
-
-    def _step(
-        self, actions: np.ndarray, messages: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-        """:meth:`step` with float64 rewards (so the single env returns exact decimals)."""
-        actions = self._check_actions(actions)
+        actions = self.check_actions(actions)
         messages = self._check_messages(messages)
         if self._finished.any():
             raise ValueError(
@@ -312,9 +335,11 @@ class VectorMultiAgentEnv:
         self._steps += 1
         on_target = flat == self._target_flat
         both_on_target = on_target[:, 0] & on_target[:, 1]
-        pays_bonus = on_target & ~self._visited if self.reward_mode == "arrival" else on_target
-        parts = np.where(pays_bonus, ARRIVAL_REWARD, STEP_REWARD)
-        rewards = parts[:, 0] + parts[:, 1]
+        if self.reward_mode == "per_step":
+            pays_bonus = on_target[:, 0] != on_target[:, 1]  # exactly one on the target
+        else:
+            pays_bonus = (on_target & ~self._visited).any(axis=1)  # a first arrival
+        rewards = np.where(pays_bonus, ARRIVAL_REWARD, STEP_REWARD)
         rewards[both_on_target] = BOTH_ON_TARGET_REWARD
         self._visited |= on_target
         terminated = both_on_target
@@ -344,21 +369,44 @@ class VectorMultiAgentEnv:
         print("\n".join(" ".join(row) for row in cells))
         message_a, message_b = self._messages[env_index]
         print(
-            f"step {self._steps[env_index]}/{self.max_steps}  message A→B {message_a:.2f}  "
-            f"B→A {message_b:.2f}"
+            f"step {self._steps[env_index]}/{self.max_steps}  message A->B {message_a:.2f}  "
+            f"B->A {message_b:.2f}"
         )
 
 
 def _single_number(value: object, name: str) -> int | float:
+    """A Python int or float from a number or a one-element array; ValueError naming
+    ``name`` otherwise (booleans and strings are not numbers here)."""
     array = np.asarray(value)
-    if array.size != 1:
-        raise ValueError(f"{name} must be a single number, got shape {array.shape}")
+    if array.size != 1 or array.dtype.kind not in "iuf":
+        raise ValueError(f"{name} must be a single number, got {value!r}")
     return array.reshape(()).item()
 
 
+def _action(value: object, name: str) -> int:
+    allowed = f"{name} must be an integer in 0..{NUM_ACTIONS - 1}"
+    if np.asarray(value).dtype.kind == "b":
+        raise ValueError(f"{allowed}, got the boolean {value!r}")
+    number = _single_number(value, name)
+    if not isinstance(number, int) or not 0 <= number < NUM_ACTIONS:
+        raise ValueError(f"{allowed}, got {value!r}")
+    return number
+
+
+def _message(value: object, name: str) -> float:
+    number = float(_single_number(value, name))
+    if not np.isfinite(number):
+        raise ValueError(f"{name} must be a finite number (clipped into [0, 1]), got {value!r}")
+    return number
+
+
 class MultiAgentEnv:
-    """One environment with the course interface; an N = 1 view of VectorMultiAgentEnv
-    (see there for the reward). ``step`` after the episode ended raises ValueError."""
+    """One environment with the course interface: an N = 1 view of VectorMultiAgentEnv
+    (see there for the rewards; the default is the assignment's table).
+
+    Starter attributes, always in sync with the state: ``agent_positions`` (settable),
+    ``comm_signals`` ([message from A, message from B]), ``step_count``, ``target_pos``.
+    ``step`` after the episode ended raises ValueError."""
 
     def __init__(
         self,
@@ -366,7 +414,7 @@ class MultiAgentEnv:
         obs_window: int = 3,
         max_steps: int = 50,
         seed: int | None = None,
-        reward_mode: str = "arrival",
+        reward_mode: str = "per_step",
         grid: np.ndarray | None = None,
     ) -> None:
         self._vector = VectorMultiAgentEnv(
@@ -380,8 +428,26 @@ class MultiAgentEnv:
 
     @property
     def agent_positions(self) -> list[tuple[int, int]]:
-        """[(row_A, col_A), (row_B, col_B)]."""
+        """[(row_A, col_A), (row_B, col_B)]; assign two cells to move the agents there."""
         return [(int(r), int(c)) for r, c in self._vector.positions[0]]
+
+    @agent_positions.setter
+    def agent_positions(self, positions: list[tuple[int, int]]) -> None:
+        self._vector.positions = np.asarray(positions)[None]
+
+    @property
+    def comm_signals(self) -> list[float]:
+        """[last message sent by A, last message sent by B] (0.0 after a reset)."""
+        return [float(m) for m in self._vector.messages[0]]
+
+    @property
+    def step_count(self) -> int:
+        """Steps taken in the current episode."""
+        return int(self._vector.steps[0])
+
+    @property
+    def target_pos(self) -> tuple[int, int]:
+        return self._vector.target_position
 
     @property
     def target_position(self) -> tuple[int, int]:
@@ -399,12 +465,11 @@ class MultiAgentEnv:
         self, action_A: int, action_B: int, comm_A: float, comm_B: float
     ) -> tuple[tuple[np.ndarray, np.ndarray], float, bool]:
         """One joint step: ((obs_A, obs_B), team reward, done). ``done`` is True when both
-        agents stand on the target or ``max_steps`` steps have passed."""
-        actions = [_single_number(action_A, "action_A"), _single_number(action_B, "action_B")]
-        if not all(isinstance(a, int) for a in actions):
-            raise ValueError(f"actions must be integers 0..4, got {actions}")
-        messages = [[_single_number(comm_A, "comm_A"), _single_number(comm_B, "comm_B")]]
-        obs, rewards, terminated, truncated, _ = self._vector._step(np.array([actions]), messages)
+        agents stand on the target or ``max_steps`` steps have passed. Messages are clipped
+        into [0, 1]."""
+        actions = np.array([[_action(action_A, "action_A"), _action(action_B, "action_B")]])
+        messages = np.array([[_message(comm_A, "comm_A"), _message(comm_B, "comm_B")]])
+        obs, rewards, terminated, truncated, _ = self._vector.step(actions, messages)
         return (obs[0, 0], obs[0, 1]), float(rewards[0]), bool(terminated[0] or truncated[0])
 
     def _get_observation(self, agent_idx: int) -> np.ndarray:
@@ -421,9 +486,7 @@ class MultiAgentEnv:
         """Cell reached from ``pos`` by ``action`` (``pos`` itself if the move is blocked)."""
         if not self._is_valid_position(pos):
             raise ValueError(f"pos {pos} is off the grid or on an obstacle")
-        actions = self._vector._check_actions(np.full((1, 2), action))[:1, :1]
-        flat = self._vector._to_flat(np.array([[pos[0]]]), np.array([[pos[1]]]))
-        row, col = self._vector._rows_cols(self._vector._move(flat, actions))[0, 0]
+        row, col = self._vector.next_cells(pos[0], pos[1], _action(action, "action"))
         return int(row), int(col)
 
     def _find_free_cells(self) -> list[tuple[int, int]]:

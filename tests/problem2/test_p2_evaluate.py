@@ -46,7 +46,7 @@ def test_random_policy_matches_baselines_json_within_noise() -> None:
     pooled = (summary["success_rate"] * 2000 + recorded["success_rate"] * 1000) / 3000
     noise = np.sqrt(max(pooled * (1 - pooled), 1e-3) * (1 / 2000 + 1 / recorded["episodes"]))
     assert abs(summary["success_rate"] - recorded["success_rate"]) < 4 * noise
-    assert summary["mean_return"] == pytest.approx(recorded["mean_return_arrival"], abs=0.25)
+    assert summary["mean_return"] == pytest.approx(recorded["mean_return_per_step"], abs=0.25)
 
 
 def test_bootstrap_of_a_constant_sample_has_zero_width() -> None:
