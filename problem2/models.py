@@ -8,6 +8,7 @@ Both networks follow the assignment's formula with one hidden layer:
 from __future__ import annotations
 
 import copy
+import hashlib
 import io
 import warnings
 import zipfile
@@ -168,16 +169,28 @@ def export_policy(
 
 
 def _without_debug_sources(archive: bytes) -> bytes:
-    """Drop the ``*.debug_pkl`` entries of a TorchScript archive. They map the code to
-    source lines and contain the absolute path of this file, so two checkouts in different
-    folders would write different bytes; ``torch.jit.load`` does not need them (an error
-    inside a loaded model just reports no Python source line)."""
+    """Make a TorchScript archive depend on its content only.
+
+    Drops the ``*.debug_pkl`` entries: they map the code to source lines and contain the
+    absolute path of this file, so two checkouts in different folders would write different
+    bytes; ``torch.jit.load`` does not need them (an error inside a loaded model just reports
+    no Python source line). Replaces the random per-process ``.data/serialization_id`` (40
+    digits, used by torch only to tell archives apart) by 40 digits of a SHA-256 of the
+    other entries, so equal weights give byte-identical files in any process."""
     source = zipfile.ZipFile(io.BytesIO(archive))
+    entries = [e for e in source.infolist() if not e.filename.endswith(".debug_pkl")]
+    digest = hashlib.sha256()
+    for entry in entries:
+        if not entry.filename.endswith("serialization_id"):
+            digest.update(entry.filename.encode() + source.read(entry.filename))
+    content_id = str(int(digest.hexdigest(), 16))[:40].zfill(40).encode()
     output = io.BytesIO()
     with zipfile.ZipFile(output, "w", zipfile.ZIP_STORED) as stripped:
-        for entry in source.infolist():
-            if not entry.filename.endswith(".debug_pkl"):
-                stripped.writestr(entry, source.read(entry.filename))
+        for entry in entries:
+            data = source.read(entry.filename)
+            stripped.writestr(
+                entry, content_id if entry.filename.endswith("serialization_id") else data
+            )
     return output.getvalue()
 
 

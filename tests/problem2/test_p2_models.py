@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -133,3 +135,18 @@ def test_export_is_byte_reproducible_and_free_of_local_paths(tmp_path: Path) -> 
     q_values, _ = load_policy(first)(obs)
     expected, _ = network(obs * torch.tensor([1.0] * 10 + [0.0]))
     torch.testing.assert_close(q_values, expected)
+
+
+def test_export_is_byte_identical_across_processes(tmp_path: Path) -> None:
+    # torch writes a random serialization id per process; the export replaces it by a hash.
+    script = (
+        "import sys, torch; torch.manual_seed(3)\n"
+        "from models import AgentDQN, export_policy\n"
+        "export_policy(AgentDQN(), 'full', sys.argv[1])\n"
+    )
+    problem2 = Path(__file__).resolve().parents[2] / "problem2"
+    paths = [tmp_path / "a.pt", tmp_path / "b.pt"]
+    for path in paths:
+        subprocess.run([sys.executable, "-c", script, str(path)], cwd=problem2, check=True)
+    assert paths[0].read_bytes() == paths[1].read_bytes()
+    assert load_policy(paths[0])(torch.zeros(11))[0].shape == (5,)
