@@ -63,10 +63,21 @@ REWARD_MODES = ("per_step", "arrival")  # the first is the default: the assignme
 MAX_TABULATED_CELLS = 4096  # padded cells; the (P, P) float32 table is then ≤ 64 MiB
 
 
-def _positive_int(value: int, name: str) -> int:
-    if isinstance(value, bool) or int(value) != value or value < 1:
+def _is_integer(value: object) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
+
+
+def _positive_int(value: object, name: str) -> int:
+    if not _is_integer(value) or value < 1:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
     return int(value)
+
+
+def _check_seed(seed: object, name: str = "seed") -> int | None:
+    """``None`` or a non-negative integer (what NumPy's generators accept)."""
+    if seed is not None and (not _is_integer(seed) or seed < 0):
+        raise ValueError(f"{name} must be None or a non-negative integer, got {seed!r}")
+    return None if seed is None else int(seed)
 
 
 class VectorMultiAgentEnv:
@@ -101,18 +112,14 @@ class VectorMultiAgentEnv:
         auto_reset: bool = True,
     ) -> None:
         self.n_envs = _positive_int(n_envs, "n_envs")
-        if (
-            isinstance(obs_window, bool)
-            or int(obs_window) != obs_window
-            or obs_window < 3
-            or obs_window % 2 == 0
-        ):
+        if not _is_integer(obs_window) or obs_window < 3 or obs_window % 2 == 0:
             raise ValueError(f"obs_window must be an odd integer >= 3, got {obs_window!r}")
         self.obs_window = int(obs_window)
         self.max_steps = _positive_int(max_steps, "max_steps")
         if reward_mode not in REWARD_MODES:
             raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {reward_mode!r}")
         self.reward_mode = reward_mode
+        seed = _check_seed(seed)
         self.auto_reset = bool(auto_reset)
         self.grid = generate_map(grid_size, seed) if grid is None else check_grid(grid)
         self.grid.flags.writeable = False
@@ -272,7 +279,7 @@ class VectorMultiAgentEnv:
         grid, the target included, but not both on the target. An agent starting on the
         target earns no arrival bonus for it.
         """
-        if seed is not None:
+        if _check_seed(seed) is not None:
             self._rng = np.random.default_rng(seed)
         flat = None
         if positions is not None:

@@ -166,6 +166,12 @@ def test_larger_observation_window() -> None:
         ({"grid_size": (3, 3), "seed": 0}, "no connected 3×3 map"),
         ({"grid": np.array([[0, 1, 0], [1, 1, 0], [0, 0, 2]])}, "not connected"),
         ({"max_steps": 0}, "max_steps"),
+        ({"max_steps": None}, "max_steps must be a positive integer"),
+        ({"max_steps": 2.5}, "max_steps must be a positive integer"),
+        ({"obs_window": None}, "obs_window"),
+        ({"seed": -1}, "seed must be None or a non-negative integer"),
+        ({"seed": 1.5}, "seed must be None or a non-negative integer"),
+        ({"seed": "641"}, "seed must be None or a non-negative integer"),
         ({"reward_mode": "shaped"}, "reward_mode"),
     ],
 )
