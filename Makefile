@@ -6,6 +6,7 @@ VENV   := .venv
 PY     := $(CURDIR)/$(VENV)/bin/python
 RUNTIME_STAMP := $(VENV)/.runtime-installed
 DEV_STAMP     := $(VENV)/.dev-installed
+REPORT_STAMP  := $(VENV)/.report-installed
 
 .PHONY: all problem1 problem2 p2-baselines p2-main p2-studies p2-evaluate report test lint \
 	bench clean
@@ -19,8 +20,12 @@ $(RUNTIME_STAMP): requirements.txt | $(VENV)/bin/python
 	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.txt
 	touch $@
 
-$(DEV_STAMP): requirements-dev.txt $(RUNTIME_STAMP)
+$(DEV_STAMP): requirements-dev.txt $(RUNTIME_STAMP) $(REPORT_STAMP)
 	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements-dev.txt
+	touch $@
+
+$(REPORT_STAMP): report/requirements.txt | $(VENV)/bin/python
+	$(PY) -m pip install --quiet --disable-pip-version-check -r report/requirements.txt
 	touch $@
 
 ## Problem 1: value iteration, Q-iteration, figures, stochasticity study (seconds).
@@ -52,9 +57,12 @@ p2-studies: $(RUNTIME_STAMP)
 p2-evaluate: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) evaluate.py
 
-## The written report, built from the result files (seconds).
-report: $(RUNTIME_STAMP)
-	$(PY) report/build_report.py
+## The written report, built from the result files (seconds). Your name on the cover:
+##   make report NAME="Full Name" EMAIL="you@usc.edu"   (only values given on this command line)
+REPORT_ARGS = $(if $(filter command line,$(origin NAME)),--name "$(NAME)") \
+	$(if $(filter command line,$(origin EMAIL)),--email "$(EMAIL)")
+report: $(REPORT_STAMP)
+	$(PY) report/build.py $(REPORT_ARGS)
 
 test: $(DEV_STAMP)
 	$(PY) -m pytest

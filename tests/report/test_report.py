@@ -1,0 +1,88 @@
+"""The report compiles from the committed results, keeps its blanks, and is reproducible."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import typst
+
+ROOT = Path(__file__).resolve().parents[2]
+_spec = importlib.util.spec_from_file_location("report_build", ROOT / "report" / "build.py")
+build = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(build)
+
+
+def cover_field(label: str, name: str = "", email: str = "") -> str:
+    """The text typeset in the cover field ``label`` (``student-name`` / ``student-email``)."""
+    found = json.loads(
+        typst.query(str(ROOT / build.MAIN), f"<{label}>", **build.typst_options(name, email))
+    )
+    assert len(found) == 1, f"one cover field {label} expected"
+
+    def text(node) -> str:
+        if isinstance(node, dict):
+            return node.get("text", "") + "".join(text(v) for k, v in node.items() if k != "text")
+        if isinstance(node, list):
+            return "".join(text(v) for v in node)
+        return ""
+
+    return text(found[0]["body"]).strip()
+
+
+@pytest.fixture(scope="module")
+def blank_pdf(tmp_path_factory: pytest.TempPathFactory) -> bytes:
+    output = tmp_path_factory.mktemp("report") / "report.pdf"
+    build.build(output)
+    return output.read_bytes()
+
+
+def test_report_compiles_from_the_committed_results_without_warnings() -> None:
+    pdf, warnings = typst.compile_with_warnings(str(ROOT / build.MAIN), **build.typst_options())
+    assert pdf.startswith(b"%PDF")
+    assert [w.message for w in warnings] == []
+
+
+def test_report_is_byte_identical_across_builds(blank_pdf: bytes, tmp_path: Path) -> None:
+    build.build(tmp_path / "again.pdf")
+    assert (tmp_path / "again.pdf").read_bytes() == blank_pdf
+
+
+def test_cover_fields_are_blank_by_default() -> None:
+    assert cover_field("student-name") == ""
+    assert cover_field("student-email") == ""
+
+
+def test_name_and_email_appear_on_the_cover_when_given(blank_pdf: bytes, tmp_path: Path) -> None:
+    name, email = "Ada Lovelace-Byron", "ada@usc.edu"
+    assert cover_field("student-name", name, email) == name
+    assert cover_field("student-email", name, email) == email
+    build.build(tmp_path / "named.pdf", name, email)
+    assert (tmp_path / "named.pdf").read_bytes() != blank_pdf
+
+
+def test_a_missing_result_file_is_an_error_naming_it(tmp_path: Path) -> None:
+    shutil.copytree(ROOT / "report", tmp_path / "report", ignore=shutil.ignore_patterns("*.py*"))
+    shutil.copytree(ROOT / "problem1" / "results", tmp_path / "problem1" / "results")
+    with pytest.raises(typst.TypstError, match="hyperparameters.json"):
+        build.build(tmp_path / "report.pdf", root=tmp_path)
+    assert not (tmp_path / "report.pdf").exists()
+
+
+def test_optional_inputs_are_passed_only_when_present(tmp_path: Path) -> None:
+    assert "reward-study" not in build.sys_inputs(root=tmp_path)
+    study = tmp_path / build.OPTIONAL_INPUTS["reward-study"]
+    study.parent.mkdir(parents=True)
+    study.write_text("{}", encoding="utf-8")
+    assert build.sys_inputs(root=tmp_path)["reward-study"] == build.OPTIONAL_INPUTS["reward-study"]
+    assert "name" not in build.sys_inputs(root=tmp_path)
+
+
+def test_cli_refuses_a_name_on_two_lines(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        build.parse_args(["--name", "Ada\nLovelace"])
+    assert exit_info.value.code == 2
+    assert "--name must be one line" in capsys.readouterr().err
