@@ -121,7 +121,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     make_console_safe()
     args = add_solver_arguments(new_parser(__doc__)).parse_args(argv)
     out = Path(args.results_dir)
-    out.mkdir(parents=True, exist_ok=True)
     remove_stale_temporaries(out)
 
     results = [solve_drift(drift, args.gamma, args.epsilon) for drift in DRIFTS]

@@ -115,7 +115,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     make_console_safe()
     args = parse_args(argv)
     out = Path(args.results_dir)
-    out.mkdir(parents=True, exist_ok=True)
     remove_stale_temporaries(out)
     settings = {
         "gamma": args.gamma,

@@ -364,6 +364,10 @@ def main(argv: list[str] | None = None) -> dict[str, Path]:
     make_console_safe()
     args = parse_args(argv)
     remove_stale_temporaries(args.results_dir)
+    try:
+        load_run(args.results_dir)
+    except (FileNotFoundError, ValueError) as error:  # no traceback for a missing or mixed run
+        raise SystemExit(f"visualize.py: error: {error}") from None
     written = visualize_results(args.results_dir)
     for path in written.values():
         print(f"wrote {path}")

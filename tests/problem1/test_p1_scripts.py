@@ -133,6 +133,13 @@ def test_visualize_results_names_the_missing_file(tmp_path: Path) -> None:
         visualize_results(tmp_path)
 
 
+def test_visualize_cli_says_what_is_missing_without_a_traceback(tmp_path: Path) -> None:
+    completed = run_script("visualize.py", "--results_dir", str(tmp_path))
+    assert completed.returncode == 1
+    error = completed.stderr.decode("cp1252", "replace")
+    assert "value_function.npz is missing" in error and "Traceback" not in error
+
+
 def test_arrays_of_different_runs_are_refused(trained: Path, tmp_path: Path) -> None:
     from visualize import visualize_results
 
