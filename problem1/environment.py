@@ -62,6 +62,11 @@ COURSE_LAYOUT = layout_from_cells(COURSE_MAP)  # ("S....", "..#..", ".#...", "P.
 
 def _parse_layout(layout: Sequence[str]) -> dict[str, Any]:
     """Validate a character layout and return its size and special cells."""
+    if isinstance(layout, str | bytes) or not isinstance(layout, Sequence | np.ndarray):
+        raise ValueError(
+            "layout must be a list of row strings such as ['S..', '.#.', '..G'], "
+            f"got a {type(layout).__name__}: {layout!r:.60}"
+        )
     rows = list(layout)
     if not rows:
         raise ValueError("layout is empty: give at least one row of characters")
@@ -87,17 +92,28 @@ def _parse_layout(layout: Sequence[str]) -> dict[str, Any]:
     return {"size": size, **cells}
 
 
+def _check_max_steps(max_steps: Any) -> int:
+    if isinstance(max_steps, bool) or not isinstance(max_steps, numbers.Integral):
+        raise ValueError(f"max_steps must be an integer >= 1, got {max_steps!r}")
+    if max_steps < 1:
+        raise ValueError(f"max_steps must be an integer >= 1, got {max_steps}")
+    return int(max_steps)
+
+
 class GridWorldEnv:
     """The 5x5 stochastic gridworld of the assignment (or any square layout).
 
     Args:
         seed: seed of the environment's own ``np.random.Generator`` (used by ``step``).
         layout: rows of characters ``S`` start, ``G`` goal, ``#`` obstacle,
-            ``P`` penalty, ``.`` free; defaults to the course layout.
-        prob_drift: probability of slipping to each perpendicular side;
+            ``P`` penalty, ``.`` free; defaults to the course layout. The goal must be
+            reachable from the start.
+        prob_drift: probability of slipping to each perpendicular side, in [0, 0.5];
             the intended move succeeds with ``1 - 2 * prob_drift``.
-        max_steps: episode length limit.
+        max_steps: episode length limit, an integer >= 1.
     """
+
+    action_names = list(ACTION_NAMES)
 
     def __init__(
         self,
@@ -106,16 +122,17 @@ class GridWorldEnv:
         prob_drift: float = 0.1,
         max_steps: int = 50,
     ) -> None:
+        if isinstance(prob_drift, bool) or not isinstance(prob_drift, numbers.Real):
+            raise ValueError(f"prob_drift must be a number in [0, 0.5], got {prob_drift!r}")
         if not 0.0 <= prob_drift <= 0.5:
             raise ValueError(f"prob_drift must lie in [0, 0.5], got {prob_drift}")
-        if max_steps < 1:
-            raise ValueError(f"max_steps must be at least 1, got {max_steps}")
+        self.max_steps = _check_max_steps(max_steps)
         parsed = COURSE_MAP if layout is None else _parse_layout(layout)
         self.layout = layout_from_cells(parsed)
         self.grid_size: int = parsed["size"]
         self.n_states: int = self.grid_size**2
-        self.max_steps = int(max_steps)
         self.action_space = 4
+        self.action_names = list(ACTION_NAMES)
         self.start_pos: Position = parsed["start"][0]
         self.goal_pos: Position = parsed["goal"][0]
         self.obstacles: list[Position] = list(parsed["obstacle"])
@@ -126,10 +143,12 @@ class GridWorldEnv:
         self.prob_drift = float(prob_drift)
         self.prob_intended = 1.0 - 2.0 * self.prob_drift
         self.outcome_probs = np.array([self.prob_intended, self.prob_drift, self.prob_drift])
-        self._blocked = np.zeros((self.grid_size, self.grid_size), dtype=bool)
-        self._blocked[tuple(np.array(self.obstacles, dtype=int).reshape(-1, 2).T)] = True
+        # obstacle_mask[r, c]: True on obstacle cells, shape (grid_size, grid_size)
+        self.obstacle_mask = np.zeros((self.grid_size, self.grid_size), dtype=bool)
+        self.obstacle_mask[tuple(np.array(self.obstacles, dtype=int).reshape(-1, 2).T)] = True
         self.move_table = self._build_move_table()
         self.cell_rewards = self._build_cell_rewards()
+        self._check_goal_reachable()
         self.rng = np.random.default_rng(seed)
         self.reset()
 
@@ -139,7 +158,7 @@ class GridWorldEnv:
         self.current_pos = self.start_pos
         self.steps = 0
         self.done = False
-        return self._pos_to_state(self.current_pos)
+        return self.pos_to_state(self.current_pos)
 
     def step(self, action: int) -> tuple[int, float, bool, dict[str, Any]]:
         """Sample one transition: ``(next_state, reward, done, info)``.
@@ -148,10 +167,10 @@ class GridWorldEnv:
         ``"drift_left"`` or ``"drift_right"``) and ``truncated`` (the step limit,
         not the goal, ended the episode).
         """
-        action = self._check_action(action)
+        action = self.check_action(action)
         if self.done:
             raise ValueError("step() called after the episode ended; call reset() first")
-        outcomes = self._get_next_positions(self.current_pos, action)
+        outcomes = self.outcomes(self.current_pos, action)
         choice = int(self.rng.choice(len(outcomes), p=[p for _, p in outcomes]))
         self.current_pos = outcomes[choice][0]
         self.steps += 1
@@ -165,47 +184,53 @@ class GridWorldEnv:
             "outcome": OUTCOME_NAMES[choice],
             "truncated": truncated,
         }
-        return self._pos_to_state(self.current_pos), reward, self.done, info
+        return self.pos_to_state(self.current_pos), reward, self.done, info
 
     # ------------------------------------------------------------------ model
     def get_transition_prob(self, state: int, action: int) -> dict[int, float]:
         """Next-state index -> probability, duplicates merged (sums to 1)."""
-        pos = self._state_to_pos(state)
-        probs: dict[int, float] = {}
-        for next_pos, p in self._get_next_positions(pos, self._check_action(action)):
-            if p == 0.0:
-                continue
-            next_state = self._pos_to_state(next_pos)
-            probs[next_state] = probs.get(next_state, 0.0) + p
-        return probs
+        pos = self.state_to_pos(state)
+        return {
+            self.pos_to_state(next_pos): p
+            for next_pos, p in self._get_next_positions(pos, self.check_action(action))
+        }
 
     def get_reward(self, state: int, action: int, next_state: int) -> float:
         """Reward for entering ``next_state`` (it does not depend on ``state`` or ``action``)."""
-        self._check_state(state)
-        self._check_action(action)
-        return self._calculate_reward(self._state_to_pos(next_state))
+        self.check_state(state)
+        self.check_action(action)
+        return self._calculate_reward(self.state_to_pos(next_state))
 
     def is_terminal(self, state: int) -> bool:
         """True for the goal state only."""
-        return self._state_to_pos(state) == self.goal_pos
+        return self.state_to_pos(state) == self.goal_pos
 
-    def _get_next_positions(self, pos: Position, action: int) -> list[tuple[Position, float]]:
-        """The three outcomes of ``action`` at ``pos``: ``[(next_pos, prob)]`` for the
-        intended move, the drift to its left and the drift to its right.
-
-        Two outcomes may land on the same cell (e.g. both bump into walls);
-        :meth:`get_transition_prob` merges them.
-        """
-        action = self._check_action(action)
-        next_states = self.move_table[self._pos_to_state(pos), OUTCOME_DIRECTIONS[action]]
+    def outcomes(self, pos: Position, action: int) -> list[tuple[Position, float]]:
+        """The three outcomes of ``action`` at ``pos``, not merged: ``[(next_pos, prob)]``
+        for the intended move, the drift to its left and the drift to its right."""
+        action = self.check_action(action)
+        next_states = self.move_table[self.pos_to_state(pos), OUTCOME_DIRECTIONS[action]]
         return [
-            (self._state_to_pos(int(s)), float(p))
+            (self.state_to_pos(int(s)), float(p))
             for s, p in zip(next_states, self.outcome_probs, strict=True)
         ]
 
+    def _get_next_positions(self, pos: Position, action: int) -> list[tuple[Position, float]]:
+        """``[(next_pos, prob)]`` with outcomes that land on the same cell merged, in the
+        order intended, drift left, drift right; zero-probability outcomes are dropped.
+
+        From ``(0, 0)`` with UP: ``[((0, 0), 0.9), ((0, 1), 0.1)]`` (UP and its left
+        drift both bump into the wall).
+        """
+        merged: dict[Position, float] = {}
+        for next_pos, p in self.outcomes(pos, action):
+            if p > 0.0:
+                merged[next_pos] = merged.get(next_pos, 0.0) + p
+        return list(merged.items())
+
     def _calculate_reward(self, pos: Position) -> float:
         """Reward for entering ``pos``: goal, penalty cell or ordinary step cost."""
-        return float(self.cell_rewards[self._pos_to_state(pos)])
+        return float(self.cell_rewards[self.pos_to_state(pos)])
 
     # ------------------------------------------------------------------ geometry
     def _build_move_table(self) -> np.ndarray:
@@ -222,7 +247,7 @@ class GridWorldEnv:
             r, c = rows + dr, cols + dc
             inside = (r >= 0) & (r < size) & (c >= 0) & (c < size)
             r, c = np.clip(r, 0, size - 1), np.clip(c, 0, size - 1)
-            allowed = inside & ~self._blocked[r, c]
+            allowed = inside & ~self.obstacle_mask[r, c]
             table[:, direction] = np.where(allowed, r * size + c, rows * size + cols)
         return table
 
@@ -231,16 +256,33 @@ class GridWorldEnv:
         rewards = np.full(self.n_states, self.step_cost)
         for r, c in self.penalties:
             rewards[r * self.grid_size + c] = self.penalty_reward
-        rewards[self._pos_to_state(self.goal_pos)] = self.goal_reward
+        rewards[self.pos_to_state(self.goal_pos)] = self.goal_reward
         return rewards
 
-    def _is_valid_pos(self, pos: Position) -> bool:
+    def _check_goal_reachable(self) -> None:
+        """Refuse a layout whose goal cannot be reached from the start. Every direction has a
+        positive probability under some action for any ``prob_drift`` in [0, 0.5], so
+        reachability in the move graph is reachability in the MDP."""
+        reached = {self.pos_to_state(self.start_pos)}
+        frontier = list(reached)
+        while frontier:
+            new = {int(s) for s in self.move_table[frontier].ravel()} - reached
+            reached |= new
+            frontier = list(new)
+        if self.pos_to_state(self.goal_pos) not in reached:
+            raise ValueError(
+                f"layout: the goal {self.goal_pos} cannot be reached from the start "
+                f"{self.start_pos} (obstacles wall it off); every layout needs a path"
+            )
+
+    def is_valid_pos(self, pos: Position) -> bool:
         """Inside the grid and not an obstacle."""
         r, c = pos
         inside = 0 <= r < self.grid_size and 0 <= c < self.grid_size
-        return bool(inside and not self._blocked[r, c])
+        return bool(inside and not self.obstacle_mask[r, c])
 
-    def _pos_to_state(self, pos: Position) -> int:
+    def pos_to_state(self, pos: Position) -> int:
+        """State index ``row * grid_size + col`` of a position inside the grid."""
         r, c = pos
         if not (0 <= r < self.grid_size and 0 <= c < self.grid_size):
             raise ValueError(
@@ -248,23 +290,39 @@ class GridWorldEnv:
             )
         return int(r) * self.grid_size + int(c)
 
-    def _state_to_pos(self, state: int) -> Position:
-        state = self._check_state(state)
+    def state_to_pos(self, state: int) -> Position:
+        """``(row, col)`` of a state index (the inverse of :meth:`pos_to_state`)."""
+        state = self.check_state(state)
         return divmod(state, self.grid_size)
 
-    def _check_action(self, action: Any) -> int:
+    def check_action(self, action: Any) -> int:
+        """``action`` as a Python int, or a ValueError naming the allowed range."""
         if isinstance(action, bool) or not isinstance(action, numbers.Integral):
             raise ValueError(f"action must be an integer in 0..3, got {action!r}")
         if not 0 <= action < self.action_space:
             raise ValueError(f"action must be in 0..3 (UP, RIGHT, DOWN, LEFT), got {action}")
         return int(action)
 
-    def _check_state(self, state: Any) -> int:
+    def check_state(self, state: Any) -> int:
+        """``state`` as a Python int, or a ValueError naming the allowed range."""
         if isinstance(state, bool) or not isinstance(state, numbers.Integral):
             raise ValueError(f"state must be an integer index, got {state!r}")
         if not 0 <= state < self.n_states:
             raise ValueError(f"state must be in 0..{self.n_states - 1}, got {state}")
         return int(state)
+
+    # The course interface names these three with a leading underscore.
+    def _is_valid_pos(self, pos: Position) -> bool:
+        """Same as :meth:`is_valid_pos` (the course's name)."""
+        return self.is_valid_pos(pos)
+
+    def _pos_to_state(self, pos: Position) -> int:
+        """Same as :meth:`pos_to_state` (the course's name)."""
+        return self.pos_to_state(pos)
+
+    def _state_to_pos(self, state: int) -> Position:
+        """Same as :meth:`state_to_pos` (the course's name)."""
+        return self.state_to_pos(state)
 
     # ------------------------------------------------------------------ display
     def render(self, value_function: np.ndarray | None = None) -> None:
@@ -273,7 +331,7 @@ class GridWorldEnv:
         for r in range(self.grid_size):
             cells = []
             for c in range(self.grid_size):
-                if value_function is not None and not self._blocked[r, c]:
+                if value_function is not None and not self.obstacle_mask[r, c]:
                     cells.append(f"{float(value_function[r * self.grid_size + c]):7.2f}")
                     continue
                 symbol = self.layout[r][c].replace("S", ".")

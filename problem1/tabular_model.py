@@ -7,7 +7,7 @@ drift right), so the model is three dense ``(S, A, 3)`` arrays instead of an
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,12 +42,12 @@ class TabularModel:
         probs = np.broadcast_to(env.outcome_probs, next_states.shape).copy()
         rewards = env.cell_rewards[next_states]
         terminal = np.zeros(env.n_states, dtype=bool)
-        terminal[env._pos_to_state(env.goal_pos)] = True
+        terminal[env.pos_to_state(env.goal_pos)] = True
         absorbing = terminal.copy()
         for pos in env.obstacles:
-            absorbing[env._pos_to_state(pos)] = True
+            absorbing[env.pos_to_state(pos)] = True
         return cls(
-            next_states, probs, rewards, terminal, absorbing, env._pos_to_state(env.start_pos)
+            next_states, probs, rewards, terminal, absorbing, env.pos_to_state(env.start_pos)
         )
 
     @property
@@ -72,15 +72,14 @@ class TabularModel:
             ``(S, A)`` action values, or ``(A,)`` for a single state; zero in
             absorbing states, whose episode is over.
         """
-        values = np.asarray(values, dtype=np.float64)
-        if values.shape != (self.n_states,):
-            raise ValueError(f"values must have shape ({self.n_states},), got {values.shape}")
+        values = check_finite(values, "values", (self.n_states,))
         targets = self.rewards[states] + gamma * values[self.next_states[states]]
         q = np.sum(self.probs[states] * targets, axis=-1)
         return np.where(self.absorbing[states, ..., None], 0.0, q)
 
     def greedy_policy(self, q_values: np.ndarray) -> np.ndarray:
         """``(S,)`` int64 argmax actions (the first best action on ties; 0 in absorbing states)."""
+        q_values = check_finite(q_values, "q_values", (self.n_states, self.n_actions))
         return np.argmax(q_values, axis=1).astype(np.int64)
 
     def evaluate_policy(
@@ -103,15 +102,39 @@ class TabularModel:
         return np.linalg.solve(np.eye(self.n_states) - gamma * transition, expected_reward)
 
 
+def check_finite(array: np.ndarray, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """``array`` as float64 of the given shape with no NaN or infinity, else a ValueError."""
+    array = np.asarray(array, dtype=np.float64)
+    if array.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} must be finite numbers, got NaN or infinity")
+    return array
+
+
+def check_max_iterations(max_iterations: object) -> int:
+    """``max_iterations`` as an int >= 1, else a ValueError naming it."""
+    if isinstance(max_iterations, bool) or not isinstance(max_iterations, numbers.Integral):
+        raise ValueError(f"max_iterations must be an integer >= 1, got {max_iterations!r}")
+    if max_iterations < 1:
+        raise ValueError(f"max_iterations must be an integer >= 1, got {max_iterations}")
+    return int(max_iterations)
+
+
 class DynamicProgrammingSolver:
-    """What value iteration and Q-iteration share: the model, the parameters and
-    the fixed-point loop that records the sup-norm change of every sweep."""
+    """What value iteration and Q-iteration share: the tabular model and the parameters.
+    Each algorithm writes its own loop in ``solve``; ``history`` records the sup-norm
+    change of every sweep of the last ``solve``."""
 
     def __init__(self, env: GridWorldEnv, gamma: float = 0.95, epsilon: float = 1e-4) -> None:
-        if not 0.0 <= gamma < 1.0:
-            raise ValueError(f"gamma must lie in [0, 1) for the backup to contract, got {gamma}")
-        if not epsilon > 0.0:
-            raise ValueError(f"epsilon must be positive, got {epsilon}")
+        if isinstance(gamma, bool) or not isinstance(gamma, numbers.Real) or not 0 <= gamma < 1:
+            raise ValueError(f"gamma must lie in [0, 1) for the backup to contract, got {gamma!r}")
+        if (
+            isinstance(epsilon, bool)
+            or not isinstance(epsilon, numbers.Real)
+            or not 0 < epsilon < float("inf")
+        ):
+            raise ValueError(f"epsilon must be a positive finite number, got {epsilon!r}")
         self.env = env
         self.gamma = float(gamma)
         self.epsilon = float(epsilon)
@@ -119,24 +142,3 @@ class DynamicProgrammingSolver:
         self.n_states = self.model.n_states
         self.n_actions = self.model.n_actions
         self.history: list[float] = []
-
-    def _iterate(
-        self, sweep: Callable[[np.ndarray], np.ndarray], initial: np.ndarray, max_iterations: int
-    ) -> tuple[np.ndarray, int]:
-        """Apply ``sweep`` until ``max |new - old| < epsilon`` or ``max_iterations`` sweeps.
-
-        Returns the last iterate and the number of sweeps performed; the change of
-        every sweep is kept in ``self.history``.
-        """
-        if max_iterations < 1:
-            raise ValueError(f"max_iterations must be at least 1, got {max_iterations}")
-        self.history = []
-        current = initial
-        for _ in range(max_iterations):
-            updated = sweep(current)
-            change = float(np.max(np.abs(updated - current)))
-            self.history.append(change)
-            current = updated
-            if change < self.epsilon:
-                break
-        return current, len(self.history)

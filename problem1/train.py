@@ -2,9 +2,10 @@
 
     python train.py [--seed 641] [--gamma 0.95] [--epsilon 1e-4] [--max_iter 1000]
 
-Writes ``results/value_function.npz``, ``results/q_function.npz``,
-``results/optimal_policy.npz``, ``results/summary.json`` and the figures in
-``results/visualizations/``.
+Writes results/value_function.npz, q_function.npz, optimal_policy.npz, summary.json
+(everything but wall time; identical on every rerun), timing.json (wall time) and the
+figures in results/visualizations/. The set is written into a hidden staging folder and
+moved into place at the end, so an interrupted run leaves the previous results intact.
 """
 
 from __future__ import annotations
@@ -16,39 +17,33 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from cli import add_solver_arguments, int_at_least, new_parser
 from environment import GridWorldEnv
-from file_io import atomic_save_json, atomic_save_npz
+from file_io import (
+    atomic_save_json,
+    atomic_save_npz,
+    make_console_safe,
+    remove_stale_temporaries,
+    settings_id,
+    staged_folder,
+)
 from q_iteration import QIteration
 from value_iteration import ValueIteration
 from visualize import visualize_results
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
 Z_99 = 2.5758293035489  # two-sided 99 % quantile of the standard normal
 
 
-def add_solver_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """The flags every Problem 1 script shares: --gamma, --epsilon, --results_dir."""
-    parser.add_argument("--gamma", type=float, default=0.95, help="discount factor")
-    parser.add_argument("--epsilon", type=float, default=1e-4, help="sup-norm stopping threshold")
-    parser.add_argument(
-        "--results_dir",
-        "--results-dir",
-        dest="results_dir",
-        type=Path,
-        default=RESULTS_DIR,
-        help="output folder",
-    )
-    return parser
-
-
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = add_solver_arguments(argparse.ArgumentParser(description=__doc__.split("\n")[0]))
-    parser.add_argument("--seed", type=int, default=641, help="seed of the Monte-Carlo check")
+    parser = add_solver_arguments(new_parser(__doc__))
+    parser.add_argument(
+        "--seed", type=int_at_least(0), default=641, help="seed of the Monte-Carlo check"
+    )
     parser.add_argument(
         "--max_iter",
         "--max-iter",
         dest="max_iter",
-        type=int,
+        type=int_at_least(1),
         default=1000,
         help="maximum number of sweeps",
     )
@@ -56,9 +51,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--mc_episodes",
         "--mc-episodes",
         dest="mc_episodes",
-        type=int,
+        type=int_at_least(2),
         default=10_000,
-        help="episodes of the Monte-Carlo check of V(start)",
+        help="episodes of the Monte-Carlo check of V(start) (>= 2)",
     )
     return parser.parse_args(argv)
 
@@ -95,6 +90,10 @@ def monte_carlo_return(
     Episodes stop at the goal or at the 50-step limit, so this estimates the
     truncated return; the truncated tail is negligible for a goal-reaching policy.
     """
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 2:
+        raise ValueError(
+            f"episodes must be an integer >= 2 (for a confidence interval), got {episodes!r}"
+        )
     returns = np.empty(episodes)
     for episode in range(episodes):
         state, done, discount, total = env.reset(), False, 1.0, 0.0
@@ -113,9 +112,18 @@ def monte_carlo_return(
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
+    make_console_safe()
     args = parse_args(argv)
     out = Path(args.results_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(out)
+    settings = {
+        "gamma": args.gamma,
+        "epsilon": args.epsilon,
+        "max_iter": args.max_iter,
+        "seed": args.seed,
+        "mc_episodes": args.mc_episodes,
+    }
+    run_id = settings_id(settings)
     env = GridWorldEnv(seed=args.seed)
 
     vi = ValueIteration(env, gamma=args.gamma, epsilon=args.epsilon)
@@ -136,33 +144,26 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     monte_carlo["contains_v_start"] = bool(lo <= values[start] <= hi)
 
     def solver_summary(
-        iterations: int, seconds: float, residual: float, history: list[float], start_value: float
+        iterations: int, residual: float, history: list[float], start_value: float
     ) -> dict[str, Any]:
         return {
             "iterations": iterations,
             "converged": history[-1] < args.epsilon,
-            "wall_time_s": seconds,
-            "seconds_per_sweep": seconds / iterations,
             "final_change": history[-1],
             "bellman_residual": residual,
             "v_start": start_value,
         }
 
     summary = {
-        "gamma": args.gamma,
-        "epsilon": args.epsilon,
-        "seed": args.seed,
+        **settings,
+        "run_id": run_id,
         "start_state": start,
         "v_start": float(values[start]),
         "value_iteration": solver_summary(
-            vi_iterations, vi_seconds, vi_residual, vi.history, float(values[start])
+            vi_iterations, vi_residual, vi.history, float(values[start])
         ),
         "q_iteration": solver_summary(
-            qi_iterations,
-            qi_seconds,
-            qi_residual,
-            qi.history,
-            float(qi.extract_values(q_values)[start]),
+            qi_iterations, qi_residual, qi.history, float(qi.extract_values(q_values)[start])
         ),
         "max_value_difference_vi_qi": float(np.max(np.abs(values - qi.extract_values(q_values)))),
         "policies_agree": agree,
@@ -174,27 +175,47 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "monte_carlo": monte_carlo,
         },
     }
+    timing = {
+        "run_id": run_id,
+        "value_iteration": {
+            "wall_time_s": vi_seconds,
+            "seconds_per_sweep": vi_seconds / vi_iterations,
+        },
+        "q_iteration": {
+            "wall_time_s": qi_seconds,
+            "seconds_per_sweep": qi_seconds / qi_iterations,
+        },
+    }
 
-    atomic_save_npz(
-        out / "value_function.npz",
-        values=values,
-        iterations=vi_iterations,
-        history=np.array(vi.history),
-        gamma=args.gamma,
-        epsilon=args.epsilon,
-    )
-    atomic_save_npz(
-        out / "q_function.npz",
-        q_values=q_values,
-        iterations=qi_iterations,
-        history=np.array(qi.history),
-        gamma=args.gamma,
-        epsilon=args.epsilon,
-    )
-    atomic_save_npz(
-        out / "optimal_policy.npz", policy=vi_policy, vi_policy=vi_policy, qi_policy=qi_policy
-    )
-    atomic_save_json(out / "summary.json", summary)
+    with staged_folder(out) as stage:
+        atomic_save_npz(
+            stage / "value_function.npz",
+            values=values,
+            iterations=vi_iterations,
+            history=np.array(vi.history),
+            gamma=args.gamma,
+            epsilon=args.epsilon,
+            run_id=run_id,
+        )
+        atomic_save_npz(
+            stage / "q_function.npz",
+            q_values=q_values,
+            iterations=qi_iterations,
+            history=np.array(qi.history),
+            gamma=args.gamma,
+            epsilon=args.epsilon,
+            run_id=run_id,
+        )
+        atomic_save_npz(
+            stage / "optimal_policy.npz",
+            policy=vi_policy,
+            vi_policy=vi_policy,
+            qi_policy=qi_policy,
+            run_id=run_id,
+        )
+        atomic_save_json(stage / "summary.json", summary)
+        atomic_save_json(stage / "timing.json", timing)
+        visualize_results(stage)
 
     print(
         f"value iteration: {vi_iterations} sweeps, {vi_seconds * 1e3:.1f} ms, "
@@ -209,7 +230,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         f"(99 % CI {lo:.4f} .. {hi:.4f}); policies agree: {agree}"
     )
     env.render(values)
-    visualize_results(out)
     print(f"results written to {out}")
     return summary
 

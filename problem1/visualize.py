@@ -1,25 +1,40 @@
 """Figures for Problem 1: value heatmap with policy arrows, policy, Q-functions, convergence.
 
-python visualize.py    # redraws the figures from the .npz files that train.py wrote
+    python visualize.py [--results_dir results]
+
+Redraws the figures in <results_dir>/visualizations/ from the .npz files that train.py
+wrote (value_heatmap.png, policy_arrows.png, q_functions.png, convergence.png and .svg,
+comparison.png). Refuses arrays that come from different train.py runs.
+
+Figures are drawn at about the size they are printed on A4 (at most 6.5 in wide) with
+text of at least 8 pt.
 """
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 import numpy as np
+from cli import RESULTS_DIR, add_results_dir_argument, new_parser
 from environment import ACTION_NAMES, MOVES, GridWorldEnv
-from file_io import atomic_save_figure
+from file_io import atomic_save_figure, make_console_safe, remove_stale_temporaries
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure  # figures without pyplot: no GUI backend, no global state
-from matplotlib.patches import Rectangle
+from matplotlib.patches import Patch, Rectangle
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
-CELL_STYLE = {  # edge colour and label of the special cells
-    "goal": ("#1a9641", "GOAL +10"),
-    "penalty": ("#d7191c", "PENALTY −5"),
-    "start": ("#2b83ba", "START"),
+CELL_STYLE = {  # edge colour, tag in a large panel, legend entry
+    "goal": ("#1a9641", "GOAL", "goal: +10, episode ends"),
+    "penalty": ("#d7191c", "PENALTY", "penalty cell: −5"),
+    "start": ("#2b83ba", "START", "start"),
 }
+TAG_FONT = 9.5  # pt; every figure is drawn near its printed size
+VALUE_FONT = 10
+SMALL_FONT = 8  # the smallest text in any figure
+REWARD_NOTE = (
+    "Entering a cell pays −0.1, a PENALTY cell −5, the GOAL +10 (episode ends); "
+    "black cells are obstacles."
+)
 
 
 class GridWorldVisualizer:
@@ -35,7 +50,7 @@ class GridWorldVisualizer:
         self.grid_size = grid_size
         self.n_states = grid_size * grid_size
         # cells without a decision: obstacles and the terminal goal (their value is fixed at 0)
-        self.absorbing_cells = self.env._blocked.copy()
+        self.absorbing_cells = self.env.obstacle_mask.copy()
         self.absorbing_cells[self.env.goal_pos] = True
 
     # ------------------------------------------------------------------ building blocks
@@ -48,11 +63,14 @@ class GridWorldVisualizer:
         annotate: bool = True,
         vmin: float | None = None,
         vmax: float | None = None,
+        compact: bool = False,
     ):
         """Draw one grid on ``ax``: optional value heatmap (S,), optional arrows (S,).
 
-        Obstacles are black, the goal, penalty and start cells are framed and labelled.
-        Returns the image of the heatmap (for a colour bar), or None.
+        Obstacles are black; the goal, penalty and start cells are framed in colour and,
+        unless ``compact`` (a small panel of a multi-panel figure, explained by
+        :meth:`add_cell_legend`), tagged with their name. Returns the heatmap image (for a
+        colour bar), or None.
         """
         n = self.grid_size
         image = None
@@ -62,7 +80,7 @@ class GridWorldVisualizer:
             )
             image = ax.imshow(grid, cmap="viridis", vmin=vmin, vmax=vmax)
             if annotate:
-                self._annotate_values(ax, grid, image)
+                self._annotate_values(ax, grid, image, compact)
         else:
             ax.imshow(np.zeros((n, n)), cmap="Greys", vmin=0, vmax=1)
         for r, c in self.env.obstacles:
@@ -75,50 +93,72 @@ class GridWorldVisualizer:
             ("start", [self.env.start_pos]),
         ]
         for kind, cells in special:
-            colour, label = CELL_STYLE[kind]
+            colour, tag, _ = CELL_STYLE[kind]
             for r, c in cells:
                 ax.add_patch(
                     Rectangle(
-                        (c - 0.46, r - 0.46), 0.92, 0.92, fill=False, edgecolor=colour, linewidth=3
+                        (c - 0.45, r - 0.45),
+                        0.9,
+                        0.9,
+                        fill=False,
+                        edgecolor=colour,
+                        linewidth=2 if compact else 3,
                     )
                 )
+                if compact:
+                    continue
                 ax.text(
                     c,
-                    r - 0.36,
-                    label,
+                    r - 0.31,
+                    tag,
                     ha="center",
                     va="center",
-                    fontsize=6,
+                    fontsize=TAG_FONT,
                     color=colour,
                     fontweight="bold",
-                    bbox={"facecolor": "white", "edgecolor": "none", "pad": 0.5},
+                    bbox={"facecolor": "white", "edgecolor": "none", "pad": 0.6},
                 )
         if policy is not None:
-            self._draw_arrows(ax, np.asarray(policy), shift=0.2 if values is not None else 0.0)
+            shift = 0.0 if values is None or not annotate else (0.22 if compact else 0.25)
+            self._draw_arrows(ax, np.asarray(policy), shift, compact)
         ax.set_xticks(range(n))
         ax.set_yticks(range(n))
-        ax.set_xlabel("column")
-        ax.set_ylabel("row")
-        ax.set_title(title)
+        font = SMALL_FONT if compact else 10
+        ax.tick_params(labelsize=font)
+        ax.set_xlabel("column", fontsize=font)
+        ax.set_ylabel("row", fontsize=font)
+        ax.set_title(title, fontsize=9 if compact else 12)
         return image
 
-    def _annotate_values(self, ax: Axes, grid: np.ma.MaskedArray, image) -> None:
+    def add_cell_legend(self, fig: Figure) -> None:
+        """Legend of the coloured frames, for figures drawn with ``compact=True``."""
+        handles = [
+            Patch(facecolor="none", edgecolor=colour, linewidth=2, label=label)
+            for colour, _, label in CELL_STYLE.values()
+        ]
+        handles.append(Patch(facecolor="black", label="obstacle"))
+        fig.legend(
+            handles=handles, loc="outside lower center", ncols=4, fontsize=SMALL_FONT, frameon=False
+        )
+
+    def _annotate_values(self, ax: Axes, grid: np.ma.MaskedArray, image, compact: bool) -> None:
         for (r, c), value in np.ndenumerate(grid.filled(np.nan)):
             if np.isnan(value):
                 continue
             brightness = np.mean(image.cmap(image.norm(value))[:3])
             ax.text(
                 c,
-                r - 0.17,
-                f"{value:.2f}",
+                r - (0.2 if compact else 0.04),
+                f"{value:.1f}" if compact else f"{value:.2f}",
                 ha="center",
                 va="center",
-                fontsize=8,
+                fontsize=SMALL_FONT if compact else VALUE_FONT,
                 color="black" if brightness > 0.5 else "white",
             )
 
-    def _draw_arrows(self, ax: Axes, policy: np.ndarray, shift: float) -> None:
+    def _draw_arrows(self, ax: Axes, policy: np.ndarray, shift: float, compact: bool) -> None:
         """One arrow per decision state (not the goal, not obstacles)."""
+        length = 0.3 if shift else 0.6
         for state, action in enumerate(policy.reshape(-1)):
             r, c = divmod(state, self.grid_size)
             if self.absorbing_cells[r, c]:
@@ -126,9 +166,14 @@ class GridWorldVisualizer:
             dr, dc = MOVES[int(action)]
             ax.annotate(
                 "",
-                xy=(c + 0.25 * dc, r + shift + 0.2 * dr),
-                xytext=(c - 0.15 * dc, r + shift - 0.1 * dr),
-                arrowprops={"arrowstyle": "-|>", "color": "#f03b20", "lw": 2},
+                xy=(c + length / 2 * dc, r + shift + length / 2 * dr),
+                xytext=(c - length / 2 * dc, r + shift - length / 2 * dr),
+                arrowprops={
+                    "arrowstyle": "-|>",
+                    "color": "#f03b20",
+                    "lw": 1.5 if compact else 2,
+                    "mutation_scale": 9 if compact else 14,
+                },
             )
 
     # ------------------------------------------------------------------ figures
@@ -139,15 +184,17 @@ class GridWorldVisualizer:
         policy: np.ndarray | None = None,
     ) -> Figure:
         """Heatmap of ``values`` (S,) with the value in each cell and optional policy arrows."""
-        fig = Figure(figsize=(6.4, 5.6))
+        fig = Figure(figsize=(6.2, 5.6), layout="constrained")
         ax = fig.subplots()
         image = self.draw_grid(ax, values, policy, title)
-        fig.colorbar(image, ax=ax, label="V(s)  (expected discounted return)")
+        colour_bar = fig.colorbar(image, ax=ax, shrink=0.9)
+        colour_bar.set_label("V(s)  (expected discounted return)", fontsize=10)
+        fig.supxlabel(REWARD_NOTE, fontsize=SMALL_FONT + 0.5)
         return fig
 
     def plot_policy(self, policy: np.ndarray, title: str = "Optimal policy") -> Figure:
         """Arrows of a deterministic policy (S,) on the map."""
-        fig = Figure(figsize=(5.4, 5.4))
+        fig = Figure(figsize=(4.8, 4.8), layout="constrained")
         ax = fig.subplots()
         self.draw_grid(ax, None, policy, title)
         return fig
@@ -159,7 +206,7 @@ class GridWorldVisualizer:
         q_values = np.asarray(q_values, dtype=float)
         decision = ~self.absorbing_cells.reshape(-1)
         vmin, vmax = q_values[decision].min(), q_values[decision].max()
-        fig = Figure(figsize=(10, 9), layout="constrained")
+        fig = Figure(figsize=(6.3, 6.2), layout="constrained")
         axes = fig.subplots(2, 2)
         for action, ax in enumerate(axes.flat):
             image = self.draw_grid(
@@ -169,9 +216,13 @@ class GridWorldVisualizer:
                 f"a = {action} ({ACTION_NAMES[action]})",
                 vmin=vmin,
                 vmax=vmax,
+                compact=True,
             )
-        fig.colorbar(image, ax=axes, label="Q(s, a)  (expected discounted return)", shrink=0.6)
-        fig.suptitle(title)
+        colour_bar = fig.colorbar(image, ax=axes, shrink=0.6)
+        colour_bar.set_label("Q(s, a)  (expected discounted return)", fontsize=9)
+        colour_bar.ax.tick_params(labelsize=SMALL_FONT)
+        fig.suptitle(title, fontsize=12)
+        self.add_cell_legend(fig)
         return fig
 
     def plot_convergence(
@@ -183,7 +234,7 @@ class GridWorldVisualizer:
     ) -> Figure:
         """Sup-norm change per sweep of both algorithms (log scale) with the contraction
         bound ``||x_{k+1} - x_k|| <= gamma^k ||x_1 - x_0||``."""
-        fig = Figure(figsize=(7, 4.5))
+        fig = Figure(figsize=(6.3, 3.8), layout="constrained")
         ax = fig.subplots()
         for name, history, style in (
             ("value iteration", vi_history, "o-"),
@@ -211,7 +262,7 @@ class GridWorldVisualizer:
         ax.set_ylabel("sup-norm change  max |x_k − x_(k−1)|")
         ax.set_title("Convergence of value iteration and Q-iteration")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
+        ax.legend(fontsize=9)
         return fig
 
     def create_comparison_figure(
@@ -221,48 +272,81 @@ class GridWorldVisualizer:
         vi_policy: np.ndarray,
         qi_policy: np.ndarray,
     ) -> Figure:
-        """Side by side: VI values and policy, QI values and policy, their absolute difference."""
-        fig = Figure(figsize=(17, 5.2), layout="constrained")
+        """Side by side: VI values (colour) and policy, the same for QI, their absolute
+        difference. The panels are small, so the values are not written in the cells."""
+        fig = Figure(figsize=(6.5, 2.9), layout="constrained")
         axes = fig.subplots(1, 3)
-        vmin = min(np.min(vi_values), np.min(qi_values))
-        vmax = max(np.max(vi_values), np.max(qi_values))
-        self.draw_grid(axes[0], vi_values, vi_policy, "Value iteration", vmin=vmin, vmax=vmax)
-        image = self.draw_grid(axes[1], qi_values, qi_policy, "Q-iteration", vmin=vmin, vmax=vmax)
-        fig.colorbar(image, ax=axes[:2], label="V(s)", shrink=0.8)
+        decision = ~self.absorbing_cells.reshape(-1)
+        both = np.concatenate([np.asarray(vi_values)[decision], np.asarray(qi_values)[decision]])
+        vmin, vmax = float(both.min()), float(both.max())
+        for ax, values, policy, title in (
+            (axes[0], vi_values, vi_policy, "Value iteration"),
+            (axes[1], qi_values, qi_policy, "Q-iteration"),
+        ):
+            image = self.draw_grid(
+                ax, values, policy, title, annotate=False, vmin=vmin, vmax=vmax, compact=True
+            )
+        colour_bar = fig.colorbar(image, ax=axes[:2], shrink=0.8)
+        colour_bar.set_label("V(s)", fontsize=SMALL_FONT)
+        colour_bar.ax.tick_params(labelsize=SMALL_FONT)
         difference = np.abs(np.asarray(vi_values) - np.asarray(qi_values))
         ax = axes[2]
         grid = np.ma.masked_array(difference.reshape(self.grid_size, -1), mask=self.absorbing_cells)
-        diff_image = ax.imshow(grid, cmap="magma")
-        ax.set_title(f"|V_VI − V_QI| (max {difference.max():.1e})")
-        ax.set_xlabel("column")
-        ax.set_ylabel("row")
-        fig.colorbar(diff_image, ax=ax, label="absolute difference", shrink=0.8)
+        # the scale starts at 0; a floor keeps it readable when both solvers agree exactly
+        diff_image = ax.imshow(grid, cmap="magma", vmin=0.0, vmax=max(difference.max(), 1e-6))
+        ax.set_title(f"|V_VI − V_QI|\n(max {difference.max():.1e})", fontsize=9)
+        ax.set_xlabel("column", fontsize=SMALL_FONT)
+        ax.set_ylabel("row", fontsize=SMALL_FONT)
+        ax.tick_params(labelsize=SMALL_FONT)
+        diff_bar = fig.colorbar(diff_image, ax=ax, shrink=0.8)
+        diff_bar.set_label("absolute difference", fontsize=SMALL_FONT)
+        diff_bar.ax.tick_params(labelsize=SMALL_FONT)
+        self.add_cell_legend(fig)
         return fig
+
+
+def load_run(results_dir: str | Path) -> dict[str, dict[str, np.ndarray]]:
+    """The three arrays files of one ``train.py`` run, refused unless they carry the same
+    run id (so figures never mix, e.g., a gamma = 0.5 V with a gamma = 0.95 Q)."""
+    results_dir = Path(results_dir)
+    files = {}
+    for name in ("value_function.npz", "q_function.npz", "optimal_policy.npz"):
+        try:
+            with np.load(results_dir / name) as archive:
+                files[name] = {key: archive[key] for key in archive.files}
+        except FileNotFoundError:
+            raise FileNotFoundError(
+                f"{name} is missing in {results_dir}: run `python train.py` first"
+            ) from None
+    run_ids = {name: str(arrays.get("run_id", "none")) for name, arrays in files.items()}
+    if len(set(run_ids.values())) != 1 or "none" in run_ids.values():
+        found = ", ".join(f"{name} (run {run_id})" for name, run_id in run_ids.items())
+        raise ValueError(
+            f"the arrays in {results_dir} do not come from one train.py run: {found}; "
+            "run `python train.py` again to rewrite them together"
+        )
+    return files
 
 
 def visualize_results(results_dir: str | Path = RESULTS_DIR) -> dict[str, Path]:
     """Redraw every figure from the files ``train.py`` saved; returns the written paths."""
     results_dir = Path(results_dir)
-    try:
-        vi = np.load(results_dir / "value_function.npz")
-        qi = np.load(results_dir / "q_function.npz")
-        policies = np.load(results_dir / "optimal_policy.npz")
-    except FileNotFoundError as error:
-        raise FileNotFoundError(
-            f"{error.filename} is missing: run `python train.py` first"
-        ) from None
+    run = load_run(results_dir)
+    vi, qi, policies = run["value_function.npz"], run["q_function.npz"], run["optimal_policy.npz"]
     gamma, epsilon = float(vi["gamma"]), float(vi["epsilon"])
     visualizer = GridWorldVisualizer()
     qi_values = qi["q_values"].max(axis=1)
+    convergence = visualizer.plot_convergence(
+        list(vi["history"]), list(qi["history"]), gamma, epsilon
+    )
     figures = {
         "value_heatmap.png": visualizer.plot_value_function(
             vi["values"], "Optimal values V* with the optimal policy", policies["policy"]
         ),
         "policy_arrows.png": visualizer.plot_policy(policies["policy"]),
         "q_functions.png": visualizer.plot_q_function(qi["q_values"]),
-        "convergence.png": visualizer.plot_convergence(
-            list(vi["history"]), list(qi["history"]), gamma, epsilon
-        ),
+        "convergence.png": convergence,
+        "convergence.svg": convergence,
         "comparison.png": visualizer.create_comparison_figure(
             vi["values"], qi_values, policies["vi_policy"], policies["qi_policy"]
         ),
@@ -272,6 +356,23 @@ def visualize_results(results_dir: str | Path = RESULTS_DIR) -> dict[str, Path]:
     return {name: atomic_save_figure(out / name, figure) for name, figure in figures.items()}
 
 
-if __name__ == "__main__":
-    for path in visualize_results().values():
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    return add_results_dir_argument(new_parser(__doc__)).parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> dict[str, Path]:
+    make_console_safe()
+    args = parse_args(argv)
+    remove_stale_temporaries(args.results_dir)
+    try:
+        load_run(args.results_dir)
+    except (FileNotFoundError, ValueError) as error:  # no traceback for a missing or mixed run
+        raise SystemExit(f"visualize.py: error: {error}") from None
+    written = visualize_results(args.results_dir)
+    for path in written.values():
         print(f"wrote {path}")
+    return written
+
+
+if __name__ == "__main__":
+    main()

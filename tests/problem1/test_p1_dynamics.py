@@ -36,6 +36,7 @@ def test_probabilities_sum_to_one_everywhere(env: GridWorldEnv) -> None:
 )
 def test_drift_goes_to_the_two_perpendicular_sides(env, action, intended, left, right) -> None:
     outcomes = env._get_next_positions(OPEN_CELL, action)
+    assert outcomes == env.outcomes(OPEN_CELL, action)  # three distinct cells: nothing merged
     assert outcomes == [(intended, 0.8), (left, pytest.approx(0.1)), (right, pytest.approx(0.1))]
     for pos, _ in outcomes[1:]:
         delta = (pos[0] - OPEN_CELL[0], pos[1] - OPEN_CELL[1])
@@ -45,6 +46,8 @@ def test_drift_goes_to_the_two_perpendicular_sides(env, action, intended, left, 
 
 def test_walls_keep_the_agent_in_place(env: GridWorldEnv) -> None:
     # From the top-left corner, UP hits the wall and its left drift (LEFT) hits the wall too.
+    assert env._get_next_positions((0, 0), UP) == [((0, 0), 0.9), ((0, 1), 0.1)]
+    assert env.outcomes((0, 0), UP) == [((0, 0), 0.8), ((0, 0), 0.1), ((0, 1), 0.1)]
     assert env.get_transition_prob(0, UP) == {0: pytest.approx(0.9), 1: pytest.approx(0.1)}
     assert env.get_transition_prob(0, LEFT) == {0: pytest.approx(0.9), 5: pytest.approx(0.1)}
 
@@ -90,7 +93,7 @@ def test_step_positions_follow_the_sampled_outcome() -> None:
     expected = dict(
         zip(
             ("intended", "drift_left", "drift_right"),
-            [pos for pos, _ in env._get_next_positions(OPEN_CELL, DOWN)],
+            [pos for pos, _ in env.outcomes(OPEN_CELL, DOWN)],
             strict=True,
         )
     )

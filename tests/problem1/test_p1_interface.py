@@ -27,6 +27,24 @@ def test_environment_attributes_match_the_course(env: GridWorldEnv) -> None:
     assert (env.prob_intended, env.prob_drift) == pytest.approx((0.8, 0.1))
 
 
+def test_action_names_follow_the_clockwise_numbering(env: GridWorldEnv) -> None:
+    assert env.action_names == ["UP", "RIGHT", "DOWN", "LEFT"]
+    assert GridWorldEnv.action_names == ["UP", "RIGHT", "DOWN", "LEFT"]
+
+
+def test_next_positions_merge_outcomes_that_land_on_the_same_cell(env: GridWorldEnv) -> None:
+    assert env._get_next_positions((0, 0), 0) == [((0, 0), 0.9), ((0, 1), 0.1)]
+    for state in range(25):
+        pos = env._state_to_pos(state)
+        for action in range(4):
+            merged = env._get_next_positions(pos, action)
+            cells = [cell for cell, _ in merged]
+            assert len(cells) == len(set(cells))
+            assert sum(p for _, p in merged) == pytest.approx(1.0)
+            as_states = {env._pos_to_state(cell): p for cell, p in merged}
+            assert as_states == pytest.approx(env.get_transition_prob(state, action))
+
+
 def test_seed_is_the_only_required_constructor_argument() -> None:
     assert GridWorldEnv().grid_size == 5
     assert GridWorldEnv(seed=None).goal_pos == (4, 4)
