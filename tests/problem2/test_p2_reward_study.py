@@ -1,0 +1,159 @@
+"""The exact joint DP (joint_dp.py) and the reward study's measures (reward_study.py).
+
+Hand-computed values on corridors, a brute force over every joint action sequence on a
+small map, and the behaviour measures on hand-made trajectories."""
+
+from __future__ import annotations
+
+import itertools
+
+import joint_dp
+import numpy as np
+import pytest
+from grid_maps import generate_map
+
+GAMMA = 0.99
+CORRIDOR_3 = np.array([[0, 2, 0]])  # A | target | B
+CORRIDOR_4 = np.array([[2, 0, 0, 0]])  # target | A | . | B
+
+
+def optimal_value(grid, reward, start_a, start_b, horizon=None, gamma=GAMMA):
+    space = joint_dp.build_joint_space(grid)
+    transitions = joint_dp.build_transitions(space, reward)
+    if horizon is None:
+        solution = joint_dp.solve_stationary(transitions, gamma)
+    else:
+        solution = joint_dp.solve_finite_horizon(transitions, gamma, horizon)
+    state = space.state_index(space.cell_index(*start_a), space.cell_index(*start_b), 0, 0)
+    return float(joint_dp.optimal_values(solution, np.array([state]))[0])
+
+
+# By hand, 1×3 corridor, A left and B right of the target, γ = 0.99:
+#  H=1: both step on: 10.  H=2: A on (+2), B joins (+10): 2 + 0.99·10 = 11.9 under both.
+#  H=3 per_step: 2 + 2γ + 10γ² = 13.781; arrival: A on (+2), A off while B on (+2, B's
+#  first arrival), A back (+10): the same 13.781.
+#  H=4 per_step: 2 + 2γ + 2γ² + 10γ³ = 15.64319; arrival cannot earn a third bonus: 13.781.
+#  No clock (stationary): per_step parks forever, 2 / (1 − γ) = 200; arrival stays 13.781.
+@pytest.mark.parametrize(
+    ("reward", "horizon", "expected"),
+    [
+        ("per_step", 1, 10.0),
+        ("arrival", 1, 10.0),
+        ("per_step", 2, 11.9),
+        ("arrival", 2, 11.9),
+        ("per_step", 3, 13.781),
+        ("arrival", 3, 13.781),
+        ("per_step", 4, 15.64319),
+        ("arrival", 4, 13.781),
+        ("per_step", None, 200.0),
+        ("arrival", None, 13.781),
+    ],
+)
+def test_corridor_of_three_values_by_hand(reward, horizon, expected):
+    value = optimal_value(CORRIDOR_3, reward, (0, 0), (0, 2), horizon)
+    assert value == pytest.approx(expected, abs=1e-6)
+    swapped = optimal_value(CORRIDOR_3, reward, (0, 2), (0, 0), horizon)
+    assert swapped == pytest.approx(expected, abs=1e-6)
+
+
+# By hand, 1×4 corridor, A next to the target, B three cells away, H = 3:
+#  per_step: A on (+2), A stays while B walks (+2), B on (+10): 2 + 1.98 + 9.801 = 13.781.
+#  arrival: A on (+2), a step without bonus (−0.1), B on (+10): 2 − 0.099 + 9.801 = 11.702.
+@pytest.mark.parametrize(("reward", "expected"), [("per_step", 13.781), ("arrival", 11.702)])
+def test_corridor_of_four_values_by_hand(reward, expected):
+    assert optimal_value(CORRIDOR_4, reward, (0, 1), (0, 3), 3) == pytest.approx(expected)
+
+
+def literal_reward(reward, on_a, on_b, visited_a, visited_b):
+    """The contract's wording, independently of joint_dp.team_reward."""
+    if on_a and on_b:
+        return 10.0, True
+    if reward == "per_step":
+        return (2.0 if on_a or on_b else -0.1), False
+    first = (on_a and not visited_a) or (on_b and not visited_b)
+    return (2.0 if first else -0.1), False
+
+
+def move(grid, cell, action):
+    row, col = cell[0] + [-1, 1, 0, 0, 0][action], cell[1] + [0, 0, -1, 1, 0][action]
+    inside = 0 <= row < grid.shape[0] and 0 <= col < grid.shape[1]
+    return (row, col) if inside and grid[row, col] != 1 else cell
+
+
+def brute_force_value(grid, reward, start_a, start_b, horizon, gamma=GAMMA):
+    """Best discounted return over all 25^horizon joint action sequences."""
+    target = tuple(np.argwhere(grid == 2)[0])
+    best = -np.inf
+    for sequence in itertools.product(range(25), repeat=horizon):
+        a, b, visited_a, visited_b, total = start_a, start_b, False, False, 0.0
+        for t, joint in enumerate(sequence):
+            a, b = move(grid, a, joint // 5), move(grid, b, joint % 5)
+            on_a, on_b = a == target, b == target
+            reward_t, done = literal_reward(reward, on_a, on_b, visited_a, visited_b)
+            total += gamma**t * reward_t
+            visited_a, visited_b = visited_a or on_a, visited_b or on_b
+            if done:
+                break
+        best = max(best, total)
+    return best
+
+
+@pytest.mark.parametrize("reward", joint_dp.REWARDS)
+def test_dp_matches_brute_force_on_a_small_map(reward):
+    grid = np.array([[0, 0, 1], [2, 0, 0]])
+    horizon = 3
+    space = joint_dp.build_joint_space(grid)
+    transitions = joint_dp.build_transitions(space, reward)
+    solution = joint_dp.solve_finite_horizon(transitions, GAMMA, horizon)
+    starts = space.start_states()
+    assert len(starts) == 4 * 3  # ordered pairs of distinct free non-target cells
+    values = joint_dp.optimal_values(solution, starts)
+    cell_a, cell_b, _, _ = space.decode(starts)
+    for value, a, b in zip(values, cell_a, cell_b, strict=True):
+        start_a, start_b = tuple(space.cells[a]), tuple(space.cells[b])
+        assert value == pytest.approx(brute_force_value(grid, reward, start_a, start_b, horizon))
+
+
+@pytest.mark.parametrize("reward", joint_dp.REWARDS)
+def test_greedy_rollout_earns_the_optimal_value(reward):
+    """Re-scoring the greedy roll-out from its positions gives back V*(start)."""
+    grid = generate_map((5, 5), 3)
+    space = joint_dp.build_joint_space(grid)
+    transitions = joint_dp.build_transitions(space, reward)
+    solution = joint_dp.solve_finite_horizon(transitions, GAMMA, 20)
+    starts = space.start_states()
+    episodes = joint_dp.roll_out(space, transitions, solution, starts, 20)
+    target = tuple(space.cells[space.target])
+    rescored = joint_dp.returns_from_positions(
+        episodes.positions, episodes.lengths, target, reward, GAMMA
+    )
+    np.testing.assert_allclose(rescored, joint_dp.optimal_values(solution, starts), atol=1e-9)
+    assert episodes.successes.all()  # 20 steps suffice on a 5×5 map under both rewards
+
+
+def test_stationary_solution_is_the_limit_of_long_horizons():
+    space = joint_dp.build_joint_space(CORRIDOR_4)
+    transitions = joint_dp.build_transitions(space, "arrival")
+    stationary = joint_dp.solve_stationary(transitions, GAMMA)
+    long = joint_dp.solve_finite_horizon(transitions, GAMMA, 3000)
+    np.testing.assert_allclose(stationary.values[0], long.values[0], atol=1e-7)
+
+
+def test_returns_from_positions_by_hand():
+    # 1×4 corridor, target at (0, 0): A arrives at step 1 and stays; B arrives at step 3.
+    a = [(0, 1), (0, 0), (0, 0), (0, 0)]
+    b = [(0, 3), (0, 2), (0, 1), (0, 0)]
+    positions = np.array([list(zip(a, b, strict=True))])  # (1, 4, 2, 2)
+    lengths = np.array([3])
+    per_step = joint_dp.returns_from_positions(positions, lengths, (0, 0), "per_step")
+    arrival = joint_dp.returns_from_positions(positions, lengths, (0, 0), "arrival")
+    assert per_step[0] == pytest.approx(2 + 2 + 10)
+    assert arrival[0] == pytest.approx(2 - 0.1 + 10)
+    # The same episode cut at step 2 (truncated): no +10.
+    short = joint_dp.returns_from_positions(positions, np.array([2]), (0, 0), "per_step")
+    assert short[0] == pytest.approx(4.0)
+
+
+def test_bad_reward_name_is_refused():
+    with pytest.raises(ValueError, match="reward must be one of"):
+        joint_dp.team_reward("literal", np.zeros(2, bool), np.zeros(2, bool))
