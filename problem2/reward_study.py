@@ -264,17 +264,30 @@ def plot_study(study: dict, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     colours = {"per_step": "tab:red", "arrival": "tab:blue"}
     markers = {"independent": "o", "comm": "s", "full": "^"}
     dp = study["exact_dp"]
     optima = [
-        ("finite_horizon", "per_step", "DP optimum, assignment reward, clock seen", "*"),
-        ("stationary", "per_step", "DP optimum, assignment reward, no clock", "P"),
-        ("finite_horizon", "arrival", "DP optimum, arrival reward", "X"),
+        ("finite_horizon", "per_step", "DP, assignment, with clock", "*"),
+        ("stationary", "per_step", "DP, assignment, no clock", "P"),
+        ("finite_horizon", "arrival", "DP, arrival", "X"),
+    ]
+    legend = [
+        Line2D([], [], ls="", marker="o", color=colours["per_step"], label="trained on assignment rew."),
+        Line2D([], [], ls="", marker="o", color=colours["arrival"], label="trained on arrival rew."),
+    ]
+    legend += [
+        Line2D([], [], ls="", marker=marker, color="grey", label=mode)
+        for mode, marker in markers.items()
+    ]
+    legend += [
+        Line2D([], [], ls="", marker=marker, ms=9, mfc="none", mec="black", label=label)
+        for _, _, label, marker in optima
     ]
     with plt.rc_context({"font.size": 9, "legend.fontsize": 8}):
-        figure, axes = plt.subplots(1, 2, figsize=(7.0, 3.4), sharey=True, layout="constrained")
+        figure, axes = plt.subplots(1, 2, figsize=(6.5, 3.8), sharey=True, layout="constrained")
         for axis, condition in zip(axes, CONDITIONS, strict=True):
             for reward, modes in study.get("learned", {}).items():
                 for mode, entry in modes.items():
@@ -286,22 +299,20 @@ def plot_study(study: dict, path: Path) -> None:
                         marker=markers[mode],
                         s=22,
                         alpha=0.75,
-                        label=f"trained on {reward}, {mode}",
                     )
-            for problem, reward, label, marker in optima:
+            for problem, reward, _, marker in optima:
                 row = dp[problem][reward]
                 axis.scatter(
                     row["return_assignment"], row["success_rate"], marker=marker, s=90,
-                    facecolors="none", edgecolors="black", label=label,
+                    facecolors="none", edgecolors="black",
                 )  # fmt: skip
             epsilon = study["protocol"]["conditions"][condition]
             axis.set_title("greedy" if condition == "greedy" else f"epsilon = {epsilon}")
             axis.set_xlabel("mean return, assignment's reward")
             axis.grid(alpha=0.3)
-        axes[0].set_ylabel("success rate")
+        axes[0].set_ylabel("success rate (one point per seed)")
         axes[0].set_ylim(-0.03, 1.05)
-        handles, labels = axes[0].get_legend_handles_labels()
-        figure.legend(handles, labels, loc="outside lower center", ncol=3, frameon=False)
+        figure.legend(handles=legend, loc="outside lower center", ncol=3, frameon=False)
         path.parent.mkdir(parents=True, exist_ok=True)
         figure.savefig(path, dpi=150, metadata={"Software": None})
         plt.close(figure)
