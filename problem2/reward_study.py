@@ -29,7 +29,7 @@ import numpy as np
 import torch
 from _atomic import write_json_atomic
 from analysis_episodes import EvaluationSetting, evaluate_models
-from analysis_runs import load_model_pair, read_experiment
+from analysis_runs import Experiment, load_model_pair, read_experiment
 from analysis_stats import seed_statistics
 from grid_maps import DEFAULT_MAP_SEED, TARGET, generate_map, target_distances
 from rollout import EVAL_EPSILON, EVAL_SEED
@@ -133,11 +133,9 @@ def trained_reward(models_dir: Path, settings: dict) -> str:
     return str(settings["reward_mode"])
 
 
-def evaluate_batch(
-    models_dir: Path, reward: str, grid: np.ndarray, horizon: int, episodes: int, epsilon: float
-) -> dict[str, dict[str, list]]:
-    """Measures of every trained seed: {mode: {"seeds": [...], condition: [measures per
-    seed]}}, on the test episodes (start cells from ``EVAL_SEED``)."""
+def open_batch(models_dir: Path, reward: str, grid: np.ndarray, horizon: int) -> Experiment:
+    """The trained batch in ``models_dir``, checked: trained on ``reward``, on ``grid``,
+    with episodes of ``horizon`` steps (errors name the folder)."""
     experiment = read_experiment(reward, models_dir)
     if experiment is None:
         raise FileNotFoundError(f"no trained models (<mode>_seed<seed>_agent_A.pt) in {models_dir}")
@@ -147,13 +145,21 @@ def evaluate_batch(
         raise ValueError(f"{models_dir} holds agents trained on another map than --map_seed")
     if int(experiment.settings["max_steps"]) != horizon:
         raise ValueError(f"{models_dir}: agents trained with max_steps != {horizon}")
+    return experiment
+
+
+def evaluate_batch(
+    experiment: Experiment, grid: np.ndarray, horizon: int, episodes: int, epsilon: float
+) -> dict[str, dict[str, list]]:
+    """Measures of every trained seed: {mode: {"seeds": [...], condition: [measures per
+    seed]}}, on the test episodes (start cells from ``EVAL_SEED``)."""
     setting = EvaluationSetting(grid=grid, max_steps=horizon)
     batch: dict[str, dict[str, list]] = {}
     for mode in MODES:
         seeds = experiment.seeds.get(mode, [])
         entry: dict[str, list] = {"seeds": list(seeds), "greedy": [], "epsilon": []}
         for seed in seeds:
-            models = load_model_pair(models_dir, mode, seed)
+            models = load_model_pair(experiment.models_dir, mode, seed)
             for condition, rate in zip(CONDITIONS, (0.0, epsilon), strict=True):
                 results = evaluate_models(setting, *models, episodes, rate, seed=EVAL_SEED)
                 positions = results.trajectories["positions"]
@@ -275,8 +281,12 @@ def plot_study(study: dict, path: Path) -> None:
         ("finite_horizon", "arrival", "DP, arrival", "X"),
     ]
     legend = [
-        Line2D([], [], ls="", marker="o", color=colours["per_step"], label="trained on assignment rew."),
-        Line2D([], [], ls="", marker="o", color=colours["arrival"], label="trained on arrival rew."),
+        Line2D(
+            [], [], ls="", marker="o", color=colours["per_step"], label="trained on assignment rew."
+        ),
+        Line2D(
+            [], [], ls="", marker="o", color=colours["arrival"], label="trained on arrival rew."
+        ),
     ]
     legend += [
         Line2D([], [], ls="", marker=marker, color="grey", label=mode)
@@ -361,6 +371,13 @@ def main(argv: list[str] | None = None) -> dict:
     args = parse_args(argv)
     torch.set_num_threads(1)
     grid = generate_map((10, 10), args.map_seed)
+    folders = (
+        {} if args.dp_only else {"per_step": args.per_step_models, "arrival": args.arrival_models}
+    )
+    batches = {
+        reward: open_batch(folder, reward, grid, args.max_steps)
+        for reward, folder in folders.items()
+    }  # checked before any work
     study: dict = {
         "protocol": {
             "map_seed": args.map_seed,
@@ -375,17 +392,12 @@ def main(argv: list[str] | None = None) -> dict:
         },
         "exact_dp": exact_dp(grid, args.gamma, args.max_steps),
     }
-    if not args.dp_only:
+    if batches:
         study["learned"] = {
             reward: seed_summary(
-                evaluate_batch(
-                    folder, reward, grid, args.max_steps, args.num_episodes, args.epsilon
-                )
+                evaluate_batch(batch, grid, args.max_steps, args.num_episodes, args.epsilon)
             )
-            for reward, folder in (
-                ("per_step", args.per_step_models),
-                ("arrival", args.arrival_models),
-            )
+            for reward, batch in batches.items()
         }
         study["verdict"] = verdicts(study["learned"])
     print(format_table(study))

@@ -6,11 +6,16 @@ small map, and the behaviour measures on hand-made trajectories."""
 from __future__ import annotations
 
 import itertools
+import json
 
 import joint_dp
 import numpy as np
 import pytest
-from grid_maps import generate_map
+import reward_study
+import torch
+from analysis_stats import seed_statistics
+from grid_maps import generate_map, save_map
+from models import AgentDQN, export_policy
 
 GAMMA = 0.99
 CORRIDOR_3 = np.array([[0, 2, 0]])  # A | target | B
@@ -157,3 +162,136 @@ def test_returns_from_positions_by_hand():
 def test_bad_reward_name_is_refused():
     with pytest.raises(ValueError, match="reward must be one of"):
         joint_dp.team_reward("literal", np.zeros(2, bool), np.zeros(2, bool))
+
+
+# --------------------------------------------------------------------- reward_study measures
+OPEN_3X3 = np.array([[0, 0, 0], [0, 2, 0], [0, 0, 0]])
+
+
+def test_behaviour_measures_on_hand_made_episodes():
+    # Episode 1 (3 steps, failed): A steps on the target and stays; B comes next to it at
+    # step 1 and walks away at step 2. Episode 2: A arrives at step 1, B at step 2.
+    a1, b1 = [(1, 0), (1, 1), (1, 1), (1, 1)], [(0, 0), (0, 1), (0, 0), (0, 0)]
+    a2, b2 = [(1, 0), (1, 1), (1, 1), (1, 1)], [(0, 1), (0, 1), (1, 1), (1, 1)]
+    positions = np.array(
+        [list(zip(a1, b1, strict=True)), list(zip(a2, b2, strict=True))]
+    )  # (2, 4, 2, 2)
+    measures = reward_study.episode_measures(
+        positions, np.array([3, 2]), np.array([False, True]), OPEN_3X3
+    )
+    assert measures == pytest.approx(
+        {
+            "success_rate": 0.5,
+            "mean_steps_to_success": 2.0,
+            "return_assignment": ((2 + 2 + 2) + (2 + 10)) / 2,
+            "return_arrival": ((2 - 0.1 - 0.1) + (2 + 10)) / 2,
+            "one_never_arrives": 0.5,
+            "second_agent_reaches_target": 0.5,
+            "turned_away": 0.5,
+            "time_between_arrivals": 1.0,
+            "steps_one_on_target": (3 + 1) / 2,
+        }
+    )
+    assert set(measures) == set(reward_study.MEASURES)
+
+
+def test_hovering_next_to_the_target_is_not_turning_away():
+    a = [(1, 0), (1, 1), (1, 1), (1, 1)]
+    b = [(0, 0), (0, 1), (0, 1), (0, 1)]  # comes next to the target and waits there
+    positions = np.array([list(zip(a, b, strict=True))])
+    measures = reward_study.episode_measures(positions, np.array([3]), np.array([False]), OPEN_3X3)
+    assert measures["turned_away"] == 0.0
+    assert measures["one_never_arrives"] == 1.0
+    assert measures["time_between_arrivals"] is None
+
+
+def synthetic_learned(literal_return, literal_success, arrival_return, arrival_success):
+    def batch(returns, successes):
+        row = {
+            "return_assignment": seed_statistics(returns),
+            "success_rate": seed_statistics(successes),
+        }
+        return {"full": {"greedy": row, "epsilon": row}}
+
+    return {
+        "per_step": batch(literal_return, literal_success),
+        "arrival": batch(arrival_return, arrival_success),
+    }
+
+
+def test_verdict_names_a_misspecified_reward_only_when_both_conditions_hold():
+    hacked = reward_study.verdicts(synthetic_learned([40, 50], [0.0, 0.1], [10, 12], [0.8, 0.9]))
+    assert hacked["full"]["greedy"]["literal_reward_misspecified"]
+    assert hacked["full"]["greedy"]["return_assignment"]["ci95_separated"]
+    assert hacked["all_cases_misspecified"] and hacked["cases_misspecified"] == 2
+    weak = reward_study.verdicts(synthetic_learned([5, 6], [0.0, 0.1], [10, 12], [0.8, 0.9]))
+    assert weak["full"]["greedy"]["literal_succeeds_less"]
+    assert not weak["full"]["greedy"]["literal_reward_misspecified"]
+    assert not weak["all_cases_misspecified"] and weak["cases_misspecified"] == 0
+
+
+def write_batch(folder, reward_mode, grid):
+    torch.manual_seed(0)
+    for seed in (1, 2):
+        for agent in "AB":
+            export_policy(AgentDQN(), "full", folder / f"full_seed{seed}_agent_{agent}.pt")
+    (folder / "hyperparameters.json").write_text(
+        json.dumps({"reward_mode": reward_mode, "max_steps": 50}), encoding="utf-8"
+    )
+    save_map(folder / "map.json", grid)
+
+
+def strict_json(path):
+    def refuse(constant):
+        raise ValueError(f"non-finite number {constant} in {path}")
+
+    return json.loads(path.read_text(encoding="utf-8"), parse_constant=refuse)
+
+
+def test_study_end_to_end_on_untrained_agents(tmp_path, capsys):
+    grid = generate_map((10, 10), 641)
+    write_batch(tmp_path / "per_step", "per_step", grid)
+    write_batch(tmp_path / "arrival", "arrival", grid)
+    argv = ["--per_step_models", str(tmp_path / "per_step"), "--arrival_models"]
+    argv += [str(tmp_path / "arrival"), "--output_dir", str(tmp_path / "out")]
+    reward_study.main([*argv, "--num_episodes", "20"])
+    study = strict_json(tmp_path / "out" / "reward_study.json")
+    assert (tmp_path / "out" / "reward_study.png").stat().st_size > 0
+    dp = study["exact_dp"]
+    assert dp["finite_horizon"]["arrival"]["success_rate"] == 1.0
+    assert dp["stationary"]["per_step"]["success_rate"] == 0.0  # without a clock it parks
+    assert dp["finite_horizon"]["per_step"]["mean_steps_to_success"] == 50.0  # joins last
+    learned = study["learned"]["per_step"]["full"]
+    assert learned["seeds"] == [1, 2]
+    assert len(learned["greedy"]["success_rate"]["per_seed"]) == 2
+    assert set(study["verdict"]) == {
+        "full",
+        "all_cases_misspecified",
+        "cases_misspecified",
+        "cases",
+    }
+    assert "exact DP" in capsys.readouterr().out
+
+
+def test_study_refuses_a_batch_trained_on_the_other_reward(tmp_path):
+    grid = generate_map((10, 10), 641)
+    write_batch(tmp_path / "a", "arrival", grid)
+    argv = ["--per_step_models", str(tmp_path / "a"), "--arrival_models", str(tmp_path / "a")]
+    with pytest.raises(ValueError, match="trained with reward 'arrival', not 'per_step'"):
+        reward_study.main([*argv, "--output_dir", str(tmp_path / "out"), "--num_episodes", "5"])
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--dp_only", "--num_episodes", "0"], "--num_episodes must be a positive integer"),
+        (["--dp_only", "--epsilon", "1.5"], "--epsilon must lie in"),
+        (["--dp_only", "--gamma", "1"], "--gamma must lie in"),
+        (["--per_step_models", "no/such/folder"], "--per_step_models: folder"),
+    ],
+)
+def test_bad_arguments_are_usage_errors(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        reward_study.parse_args(argv)
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
