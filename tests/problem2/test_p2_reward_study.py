@@ -14,8 +14,11 @@ import pytest
 import reward_study
 import torch
 from analysis_stats import seed_statistics
+from baselines import random_policy
 from grid_maps import generate_map, save_map
 from models import AgentDQN, export_policy
+from multi_agent_env import VectorMultiAgentEnv
+from rollout import run_episodes
 
 GAMMA = 0.99
 CORRIDOR_3 = np.array([[0, 2, 0]])  # A | target | B
@@ -157,6 +160,26 @@ def test_returns_from_positions_by_hand():
     # The same episode cut at step 2 (truncated): no +10.
     short = joint_dp.returns_from_positions(positions, np.array([2]), (0, 0), "per_step")
     assert short[0] == pytest.approx(4.0)
+
+
+@pytest.mark.parametrize("reward", joint_dp.REWARDS)
+def test_rewards_and_moves_agree_with_the_environment(reward):
+    """Random episodes on map 641: the env's returns equal the ones re-computed from the
+    recorded positions, and the DP's move table reproduces every recorded move."""
+    env = VectorMultiAgentEnv(200, seed=641, reward_mode=reward)
+    results = run_episodes(env, random_policy(seed=5), 400, seed=11, record=True)
+    positions, actions = results.trajectories["positions"], results.trajectories["actions"]
+    recomputed = joint_dp.returns_from_positions(
+        positions, results.lengths, env.target_position, reward
+    )
+    np.testing.assert_allclose(recomputed, results.returns, atol=1e-4)  # env sums float32
+    space = joint_dp.build_joint_space(env.grid)
+    index = np.full(env.grid.shape, -1)
+    index[space.cells[:, 0], space.cells[:, 1]] = np.arange(space.num_cells)
+    taken = actions >= 0  # (E, T, 2); -1 after the end
+    before = index[positions[:, :-1, :, 0], positions[:, :-1, :, 1]]
+    after = index[positions[:, 1:, :, 0], positions[:, 1:, :, 1]]
+    np.testing.assert_array_equal(space.next_cell[before[taken], actions[taken]], after[taken])
 
 
 def test_bad_reward_name_is_refused():
