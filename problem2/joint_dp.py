@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from grid_maps import ACTION_DELTAS, NUM_ACTIONS, OBSTACLE, TARGET
+from grid_maps import ACTION_DELTAS, NUM_ACTIONS, OBSTACLE, TARGET, target_distances
 from multi_agent_env import ARRIVAL_REWARD, BOTH_ON_TARGET_REWARD, STEP_REWARD
 
 REWARDS = ("per_step", "arrival")
@@ -170,6 +170,26 @@ def build_transitions(space: JointSpace, reward: str) -> Transitions:
     now_visited = visited | on_target
     next_state = space.state_index(next_a, next_b, now_visited[..., 0], now_visited[..., 1])
     return Transitions(next_state, rewards, terminal)
+
+
+def with_potential_shaping(
+    transitions: Transitions, potential: np.ndarray, gamma: float = GAMMA
+) -> Transitions:
+    """Add Ng, Harada & Russell's (1999) shaping term gamma * potential(s') - potential(s)
+    (potential (S,); 0 after a terminal step). In the stationary problem this provably keeps
+    the optimal policies; the optimal values become V*(s) - potential(s)."""
+    rows = np.arange(len(transitions.next_state))[:, None]
+    following = np.where(transitions.terminal, 0.0, potential[transitions.next_state])
+    shaped = transitions.reward + gamma * following - potential[rows]
+    return Transitions(transitions.next_state, shaped, transitions.terminal)
+
+
+def distance_potential(space: JointSpace, scale: float = 1.0) -> np.ndarray:
+    """Potential (S,) = -scale * (path distance of A + of B to the target): the shaping
+    one would add to pull both agents onto the target."""
+    distance = target_distances(space.grid)[space.cells[:, 0], space.cells[:, 1]]
+    cell_a, cell_b, _, _ = space.decode(np.arange(space.num_states))
+    return -scale * (distance[cell_a] + distance[cell_b])
 
 
 @dataclass(frozen=True)

@@ -125,6 +125,30 @@ def exact_dp(grid: np.ndarray, gamma: float, horizon: int) -> dict:
     return table
 
 
+def shaping_check(grid: np.ndarray, gamma: float, horizon: int) -> dict:
+    """The stationary optimum of the assignment's reward plus a potential-based term pulling
+    both agents to the target (Ng et al. 1999): the term cannot change what is optimal."""
+    space = joint_dp.build_joint_space(grid)
+    starts = space.start_states()
+    transitions = joint_dp.build_transitions(space, "per_step")
+    potential = joint_dp.distance_potential(space)
+    plain = joint_dp.solve_stationary(transitions, gamma)
+    shaped = joint_dp.solve_stationary(
+        joint_dp.with_potential_shaping(transitions, potential, gamma), gamma
+    )
+    episodes = joint_dp.roll_out(space, transitions, shaped, starts, horizon)
+    measures = episode_measures(episodes.positions, episodes.lengths, episodes.successes, grid)
+    return {
+        "problem": "stationary",
+        "reward": "per_step",
+        "potential": "-(path distance of A to the target + path distance of B)",
+        "max_value_change_beyond_potential": float(
+            np.abs(shaped.values[0] - (plain.values[0] - potential)).max()
+        ),
+        "shaped_optimum": measures,
+    }
+
+
 def trained_reward(models_dir: Path, settings: dict) -> str:
     """The reward a batch was trained on: its manifest's, else its hyperparameters'."""
     manifest = models_dir / "manifest.json"
@@ -239,6 +263,11 @@ def format_table(study: dict) -> str:
                 f"{row['return_assignment']:>10.2f} {row['return_arrival']:>11.2f} "
                 f"{row['one_never_arrives']:>9.1%}"
             )
+    shaped = study["shaping_check"]["shaped_optimum"]
+    lines.append(
+        f"stationary optimum of the assignment's reward + distance potential shaping: success "
+        f"{shaped['success_rate']:.1%}, one never arrives {shaped['one_never_arrives']:.1%}"
+    )
     learned = study.get("learned")
     if learned:
         lines.append("learned agents, mean over seeds (success 95 % CI)")
@@ -391,6 +420,7 @@ def main(argv: list[str] | None = None) -> dict:
             "measures": MEASURES,
         },
         "exact_dp": exact_dp(grid, args.gamma, args.max_steps),
+        "shaping_check": shaping_check(grid, args.gamma, args.max_steps),
     }
     if batches:
         study["learned"] = {

@@ -147,6 +147,24 @@ def test_stationary_solution_is_the_limit_of_long_horizons():
     np.testing.assert_allclose(stationary.values[0], long.values[0], atol=1e-7)
 
 
+def test_potential_shaping_shifts_values_by_the_potential_only():
+    """Corridor of four: distance potential -(d_A + d_B); with it the stationary optimum of
+    the assignment's reward still parks (value 2/(1-γ) - 0.1 for the walk, minus Φ)."""
+    space = joint_dp.build_joint_space(CORRIDOR_4)
+    transitions = joint_dp.build_transitions(space, "per_step")
+    potential = joint_dp.distance_potential(space, scale=2.0)
+    start = space.state_index(space.cell_index(0, 1), space.cell_index(0, 3), 0, 0)
+    assert potential[start] == -2.0 * (1 + 3)
+    plain = joint_dp.solve_stationary(transitions, GAMMA)
+    shaped = joint_dp.solve_stationary(
+        joint_dp.with_potential_shaping(transitions, potential, GAMMA), GAMMA
+    )
+    np.testing.assert_allclose(shaped.values[0], plain.values[0] - potential, atol=1e-6)
+    assert plain.values[0, start] == pytest.approx(200.0)  # A parks at once, B stays away
+    episodes = joint_dp.roll_out(space, transitions, shaped, np.array([start]), 50)
+    assert not episodes.successes[0]
+
+
 def test_returns_from_positions_by_hand():
     # 1×4 corridor, target at (0, 0): A arrives at step 1 and stays; B arrives at step 3.
     a = [(0, 1), (0, 0), (0, 0), (0, 0)]
@@ -284,6 +302,7 @@ def test_study_end_to_end_on_untrained_agents(tmp_path, capsys):
     assert dp["finite_horizon"]["arrival"]["success_rate"] == 1.0
     assert dp["stationary"]["per_step"]["success_rate"] == 0.0  # without a clock it parks
     assert dp["finite_horizon"]["per_step"]["mean_steps_to_success"] == 50.0  # joins last
+    assert study["shaping_check"]["shaped_optimum"]["success_rate"] == 0.0
     learned = study["learned"]["per_step"]["full"]
     assert learned["seeds"] == [1, 2]
     assert len(learned["greedy"]["success_rate"]["per_seed"]) == 2
