@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import joint_dp
@@ -149,12 +150,20 @@ def shaping_check(grid: np.ndarray, gamma: float, horizon: int) -> dict:
     }
 
 
-def trained_reward(models_dir: Path, settings: dict) -> str:
-    """The reward a batch was trained on: its manifest's, else its hyperparameters'."""
-    manifest = models_dir / "manifest.json"
-    if manifest.is_file():
-        return str(json.loads(manifest.read_text(encoding="utf-8"))["reward_mode"])
-    return str(settings["reward_mode"])
+def with_manifest(experiment: Experiment) -> Experiment:
+    """``experiment`` with the settings and runs of its batch manifest, if it has one
+    (``agent_models/manifest.json``: the runs it lists, not every file in the folder)."""
+    path = experiment.models_dir / "manifest.json"
+    if not path.is_file():
+        return experiment
+    manifest = json.loads(path.read_text(encoding="utf-8"))
+    settings = experiment.settings | manifest.get("hyperparameters", {})
+    settings["reward_mode"] = manifest["reward_mode"]
+    seeds = {
+        mode: sorted(run["seed"] for run in manifest["runs"].values() if run["mode"] == mode)
+        for mode in MODES
+    }
+    return replace(experiment, settings=settings, seeds={m: s for m, s in seeds.items() if s})
 
 
 def open_batch(models_dir: Path, reward: str, grid: np.ndarray, horizon: int) -> Experiment:
@@ -163,7 +172,8 @@ def open_batch(models_dir: Path, reward: str, grid: np.ndarray, horizon: int) ->
     experiment = read_experiment(reward, models_dir)
     if experiment is None:
         raise FileNotFoundError(f"no trained models (<mode>_seed<seed>_agent_A.pt) in {models_dir}")
-    if (found := trained_reward(models_dir, experiment.settings)) != reward:
+    experiment = with_manifest(experiment)
+    if (found := experiment.settings["reward_mode"]) != reward:
         raise ValueError(f"{models_dir} holds agents trained with reward {found!r}, not {reward!r}")
     if not np.array_equal(experiment.grid, grid):
         raise ValueError(f"{models_dir} holds agents trained on another map than --map_seed")

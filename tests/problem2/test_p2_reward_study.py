@@ -323,6 +323,21 @@ def test_study_refuses_a_batch_trained_on_the_other_reward(tmp_path):
         reward_study.main([*argv, "--output_dir", str(tmp_path / "out"), "--num_episodes", "5"])
 
 
+def test_a_batch_manifest_decides_runs_and_settings(tmp_path):
+    grid = generate_map((10, 10), 641)
+    write_batch(tmp_path, "arrival", grid)  # files of seeds 1 and 2
+    run = {"mode": "full", "seed": 2, "models": {}, "sha256": {}, "selection": {}}
+    manifest = {"format": 1, "reward_mode": "per_step", "hyperparameters": {"max_steps": 50}}
+    manifest["runs"] = {"full_seed2": run}
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest), encoding="utf-8")
+    batch = reward_study.open_batch(tmp_path, "per_step", grid, 50)
+    assert batch.seeds == {"full": [2]}
+    with pytest.raises(ValueError, match="trained with reward 'per_step', not 'arrival'"):
+        reward_study.open_batch(tmp_path, "arrival", grid, 50)
+    with pytest.raises(ValueError, match="max_steps"):
+        reward_study.open_batch(tmp_path, "per_step", grid, 40)
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
