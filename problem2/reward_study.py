@@ -123,6 +123,20 @@ def exact_dp(grid: np.ndarray, gamma: float, horizon: int) -> dict:
                 },
                 **episode_measures(episodes.positions, episodes.lengths, episodes.successes, grid),
             }
+    clock, no_clock = table["finite_horizon"], table["stationary"]
+    arrival_steps = clock["arrival"]["mean_steps_to_success"]  # None if it never succeeds
+    table["what_each_reward_asks_for"] = {
+        "assignment_optimum_with_clock_succeeds_only_on_last_step": bool(
+            clock["per_step"]["mean_steps_to_success"] == horizon
+        ),
+        "assignment_optimum_without_clock_success_rate": no_clock["per_step"]["success_rate"],
+        "arrival_optimum_success_rate": min(
+            clock["arrival"]["success_rate"], no_clock["arrival"]["success_rate"]
+        ),
+        "arrival_optimum_extra_steps_over_fastest": None
+        if arrival_steps is None
+        else arrival_steps - table["fastest_success_steps"],
+    }
     return table
 
 
