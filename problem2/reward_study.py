@@ -1,0 +1,465 @@
+"""Which reward to train on, argued from evidence under the assignment's own reward.
+
+    python reward_study.py                  # exact DP on map 641 + both trained batches
+    python reward_study.py --dp_only        # the exact DP table alone (seconds)
+    python reward_study.py --per_step_models DIR --arrival_models DIR --output_dir DIR
+
+1. Exact answer (``joint_dp.py``): the optimal joint policy with full information under the
+   assignment's reward (``per_step``) and under the ``arrival`` reward, with the 50-step
+   clock in the state (``finite_horizon``) and without it (``stationary``, what the trainer
+   optimises: it bootstraps through the cut-off and the agents do not see time).
+2. What learning does: every trained seed of two batches (trained with ``--reward_mode
+   per_step`` and ``--reward_mode arrival``) on the same 1000 test episodes (seed
+   ``rollout.EVAL_SEED``), greedy and ε-greedy. Returns under both rewards are computed from
+   the recorded positions by ``joint_dp.returns_from_positions``, not taken from the env.
+3. The verdict: literal-trained agents earning more assignment-reward return while
+   succeeding less means the literal reward is misspecified for the goal.
+
+Writes ``reward_study.json`` and ``reward_study.png`` into ``--output_dir``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import joint_dp
+import numpy as np
+import torch
+from _atomic import write_json_atomic
+from analysis_episodes import EvaluationSetting, evaluate_models
+from analysis_runs import Experiment, load_model_pair, read_experiment
+from analysis_stats import seed_statistics
+from grid_maps import DEFAULT_MAP_SEED, TARGET, generate_map, target_distances
+from rollout import EVAL_EPSILON, EVAL_SEED
+
+STUDY_DIR = Path(__file__).resolve().parent / "results" / "studies" / "reward"
+MODES = ("independent", "comm", "full")
+CONDITIONS = ("greedy", "epsilon")
+MEASURES = {
+    "success_rate": "share of episodes with both agents on the target within 50 steps",
+    "mean_steps_to_success": "mean steps of the successful episodes (null if none)",
+    "return_assignment": "mean undiscounted episode return under the assignment's reward "
+    "(per_step: +10 both on target, +2 per step with exactly one on it, -0.1 otherwise)",
+    "return_arrival": "mean undiscounted episode return under the arrival reward "
+    "(+10 both on target, +2 on an agent's first arrival, -0.1 otherwise)",
+    "one_never_arrives": "share of episodes in which one agent reaches the target and the "
+    "other never does",
+    "second_agent_reaches_target": "share of episodes in which both agents stand on the "
+    "target at some step (not necessarily the same one)",
+    "turned_away": "share of episodes with a step on which one agent stays on the target "
+    "while the other moves from a cell next to the target (path distance 1) to a farther one",
+    "time_between_arrivals": "mean steps from the first agent's first arrival to the "
+    "second's, over episodes in which both arrive (null if none)",
+    "steps_one_on_target": "mean number of steps per episode with exactly one agent on the "
+    "target (the steps the assignment's reward pays +2 for)",
+}
+
+
+def episode_measures(
+    positions: np.ndarray, lengths: np.ndarray, successes: np.ndarray, grid: np.ndarray
+) -> dict[str, float | None]:
+    """Every measure of ``MEASURES`` over recorded episodes: positions (E, T + 1, 2, 2)
+    held after the end, lengths (E,), successes (E,)."""
+    target = tuple(int(i) for i in np.argwhere(grid == TARGET)[0])
+    steps = np.arange(positions.shape[1])
+    within = steps[None, :] <= lengths[:, None]  # (E, T + 1)
+    on_target = (positions == np.asarray(target)).all(axis=-1) & within[..., None]
+    ever = on_target.any(axis=1)  # (E, 2)
+    both_arrived = ever.all(axis=1)
+    first_arrival = on_target.argmax(axis=1)  # (E, 2), valid where ever
+    gaps = np.abs(first_arrival[:, 0] - first_arrival[:, 1])[both_arrived]
+    distance = target_distances(grid)[positions[..., 0], positions[..., 1]]  # (E, T + 1, 2)
+    stays = on_target[:, :-1] & on_target[:, 1:]  # (E, T, 2)
+    leaves = (distance[:, :-1] == 1) & (distance[:, 1:] > 1) & within[:, 1:, None]
+    turned_away = (stays & leaves[..., ::-1]).any(axis=(1, 2))
+    exactly_one = (on_target[:, 1:, 0] != on_target[:, 1:, 1]) & within[:, 1:]
+
+    def returns(reward: str) -> float:
+        return float(joint_dp.returns_from_positions(positions, lengths, target, reward).mean())
+
+    return {
+        "success_rate": float(successes.mean()),
+        "mean_steps_to_success": float(lengths[successes].mean()) if successes.any() else None,
+        "return_assignment": returns("per_step"),
+        "return_arrival": returns("arrival"),
+        "one_never_arrives": float((ever.any(axis=1) & ~both_arrived).mean()),
+        "second_agent_reaches_target": float(both_arrived.mean()),
+        "turned_away": float(turned_away.mean()),
+        "time_between_arrivals": float(gaps.mean()) if gaps.size else None,
+        "steps_one_on_target": float(exactly_one.sum(axis=1).mean()),
+    }
+
+
+def exact_dp(grid: np.ndarray, gamma: float, horizon: int) -> dict:
+    """Optimal values and the greedy optimal policy's behaviour from every start pair."""
+    space = joint_dp.build_joint_space(grid)
+    starts = space.start_states()
+    cell_a, cell_b, _, _ = space.decode(starts)
+    distance = target_distances(grid)[space.cells[:, 0], space.cells[:, 1]]
+    table: dict = {
+        "gamma": gamma,
+        "horizon": horizon,
+        "start_pairs": len(starts),
+        "fastest_success_steps": float(np.maximum(distance[cell_a], distance[cell_b]).mean()),
+    }
+    for problem in ("finite_horizon", "stationary"):
+        table[problem] = {}
+        for reward in joint_dp.REWARDS:
+            transitions = joint_dp.build_transitions(space, reward)
+            if problem == "finite_horizon":
+                solution = joint_dp.solve_finite_horizon(transitions, gamma, horizon)
+            else:
+                solution = joint_dp.solve_stationary(transitions, gamma)
+            values = joint_dp.optimal_values(solution, starts)
+            episodes = joint_dp.roll_out(space, transitions, solution, starts, horizon)
+            table[problem][reward] = {
+                "optimal_value": {
+                    "mean": float(values.mean()),
+                    "min": float(values.min()),
+                    "max": float(values.max()),
+                },
+                **episode_measures(episodes.positions, episodes.lengths, episodes.successes, grid),
+            }
+    clock, no_clock = table["finite_horizon"], table["stationary"]
+    arrival_steps = clock["arrival"]["mean_steps_to_success"]  # None if it never succeeds
+    table["what_each_reward_asks_for"] = {
+        "assignment_optimum_with_clock_succeeds_only_on_last_step": bool(
+            clock["per_step"]["mean_steps_to_success"] == horizon
+        ),
+        "assignment_optimum_without_clock_success_rate": no_clock["per_step"]["success_rate"],
+        "arrival_optimum_success_rate": min(
+            clock["arrival"]["success_rate"], no_clock["arrival"]["success_rate"]
+        ),
+        "arrival_optimum_extra_steps_over_fastest": None
+        if arrival_steps is None
+        else arrival_steps - table["fastest_success_steps"],
+    }
+    return table
+
+
+def shaping_check(grid: np.ndarray, gamma: float, horizon: int) -> dict:
+    """The stationary optimum of the assignment's reward plus a potential-based term pulling
+    both agents to the target (Ng et al. 1999): the term cannot change what is optimal."""
+    space = joint_dp.build_joint_space(grid)
+    starts = space.start_states()
+    transitions = joint_dp.build_transitions(space, "per_step")
+    potential = joint_dp.distance_potential(space)
+    plain = joint_dp.solve_stationary(transitions, gamma)
+    shaped = joint_dp.solve_stationary(
+        joint_dp.with_potential_shaping(transitions, potential, gamma), gamma
+    )
+    episodes = joint_dp.roll_out(space, transitions, shaped, starts, horizon)
+    measures = episode_measures(episodes.positions, episodes.lengths, episodes.successes, grid)
+    return {
+        "problem": "stationary",
+        "reward": "per_step",
+        "potential": "-(path distance of A to the target + path distance of B)",
+        "max_value_change_beyond_potential": float(
+            np.abs(shaped.values[0] - (plain.values[0] - potential)).max()
+        ),
+        "shaped_optimum": measures,
+    }
+
+
+def with_manifest(experiment: Experiment) -> Experiment:
+    """``experiment`` with the settings and runs of its batch manifest, if it has one
+    (``agent_models/manifest.json``: the runs it lists, not every file in the folder)."""
+    path = experiment.models_dir / "manifest.json"
+    if not path.is_file():
+        return experiment
+    manifest = json.loads(path.read_text(encoding="utf-8"))
+    settings = experiment.settings | manifest.get("hyperparameters", {})
+    settings["reward_mode"] = manifest["reward_mode"]
+    seeds = {
+        mode: sorted(run["seed"] for run in manifest["runs"].values() if run["mode"] == mode)
+        for mode in MODES
+    }
+    return replace(experiment, settings=settings, seeds={m: s for m, s in seeds.items() if s})
+
+
+def open_batch(models_dir: Path, reward: str, grid: np.ndarray, horizon: int) -> Experiment:
+    """The trained batch in ``models_dir``, checked: trained on ``reward``, on ``grid``,
+    with episodes of ``horizon`` steps (errors name the folder)."""
+    experiment = read_experiment(reward, models_dir)
+    if experiment is None:
+        raise FileNotFoundError(f"no trained models (<mode>_seed<seed>_agent_A.pt) in {models_dir}")
+    experiment = with_manifest(experiment)
+    if (found := experiment.settings["reward_mode"]) != reward:
+        raise ValueError(f"{models_dir} holds agents trained with reward {found!r}, not {reward!r}")
+    if not np.array_equal(experiment.grid, grid):
+        raise ValueError(f"{models_dir} holds agents trained on another map than --map_seed")
+    if int(experiment.settings["max_steps"]) != horizon:
+        raise ValueError(f"{models_dir}: agents trained with max_steps != {horizon}")
+    return experiment
+
+
+def evaluate_batch(
+    experiment: Experiment, grid: np.ndarray, horizon: int, episodes: int, epsilon: float
+) -> dict[str, dict[str, list]]:
+    """Measures of every trained seed: {mode: {"seeds": [...], condition: [measures per
+    seed]}}, on the test episodes (start cells from ``EVAL_SEED``)."""
+    setting = EvaluationSetting(grid=grid, max_steps=horizon)
+    batch: dict[str, dict[str, list]] = {}
+    for mode in MODES:
+        seeds = experiment.seeds.get(mode, [])
+        entry: dict[str, list] = {"seeds": list(seeds), "greedy": [], "epsilon": []}
+        for seed in seeds:
+            models = load_model_pair(experiment.models_dir, mode, seed)
+            for condition, rate in zip(CONDITIONS, (0.0, epsilon), strict=True):
+                results = evaluate_models(setting, *models, episodes, rate, seed=EVAL_SEED)
+                positions = results.trajectories["positions"]
+                measures = episode_measures(positions, results.lengths, results.successes, grid)
+                entry[condition].append(measures)
+        if seeds:
+            batch[mode] = entry
+    return batch
+
+
+def seed_summary(batch: dict[str, dict[str, list]]) -> dict:
+    """Mean, 95 % bootstrap CI over seeds, IQM and per-seed values of every measure."""
+    summary: dict = {}
+    for mode, entry in batch.items():
+        summary[mode] = {"seeds": entry["seeds"]}
+        for condition in CONDITIONS:
+            summary[mode][condition] = {
+                name: seed_statistics([seed[name] for seed in entry[condition]])
+                for name in MEASURES
+            }
+    return summary
+
+
+def verdicts(learned: dict) -> dict:
+    """Per mode and condition: does training on the literal reward earn more of it while
+    succeeding less than training on the arrival reward? Computed from the seed means."""
+    result: dict = {}
+    for mode in MODES:
+        if mode not in learned.get("per_step", {}) or mode not in learned.get("arrival", {}):
+            continue
+        result[mode] = {}
+        for condition in CONDITIONS:
+            literal = learned["per_step"][mode][condition]
+            arrival = learned["arrival"][mode][condition]
+
+            def gap(name: str, low: dict = literal, high: dict = arrival) -> dict:
+                separated = low[name]["ci95"][0] > high[name]["ci95"][1] or (
+                    low[name]["ci95"][1] < high[name]["ci95"][0]
+                )
+                return {
+                    "per_step_trained": low[name]["mean"],
+                    "arrival_trained": high[name]["mean"],
+                    "difference": low[name]["mean"] - high[name]["mean"],
+                    "ci95_separated": bool(separated),
+                }
+
+            returns, success = gap("return_assignment"), gap("success_rate")
+            more_return = returns["difference"] > 0
+            less_success = success["difference"] < 0
+            result[mode][condition] = {
+                "return_assignment": returns,
+                "success_rate": success,
+                "literal_earns_more_assignment_return": bool(more_return),
+                "literal_succeeds_less": bool(less_success),
+                "literal_reward_misspecified": bool(more_return and less_success),
+            }
+    cases = [case for by_condition in result.values() for case in by_condition.values()]
+    result["all_cases_misspecified"] = bool(cases) and all(
+        case["literal_reward_misspecified"] for case in cases
+    )
+    result["cases_misspecified"] = sum(case["literal_reward_misspecified"] for case in cases)
+    result["cases"] = len(cases)
+    return result
+
+
+def format_table(study: dict) -> str:
+    dp = study["exact_dp"]
+    lines = [f"exact DP, map seed {study['protocol']['map_seed']}, {dp['start_pairs']} starts"]
+    lines.append(f"{'problem':>15} {'reward':>9} {'V*(start)':>9} {'success':>8} {'steps':>6} "
+                 f"{'ret assign':>10} {'ret arrival':>11} {'one never':>9}")  # fmt: skip
+    for problem in ("finite_horizon", "stationary"):
+        for reward, row in dp[problem].items():
+            steps = row["mean_steps_to_success"]
+            lines.append(
+                f"{problem:>15} {reward:>9} {row['optimal_value']['mean']:>9.2f} "
+                f"{row['success_rate']:>8.1%} {'-' if steps is None else f'{steps:.1f}':>6} "
+                f"{row['return_assignment']:>10.2f} {row['return_arrival']:>11.2f} "
+                f"{row['one_never_arrives']:>9.1%}"
+            )
+    shaped = study["shaping_check"]["shaped_optimum"]
+    lines.append(
+        f"stationary optimum of the assignment's reward + distance potential shaping: success "
+        f"{shaped['success_rate']:.1%}, one never arrives {shaped['one_never_arrives']:.1%}"
+    )
+    learned = study.get("learned")
+    if learned:
+        lines.append("learned agents, mean over seeds (success 95 % CI)")
+        for reward, modes in learned.items():
+            for mode, entry in modes.items():
+                for condition in CONDITIONS:
+                    row = entry[condition]
+                    low, high = row["success_rate"]["ci95"]
+                    lines.append(
+                        f"{reward:>9} {mode:>11} {condition:>7} success "
+                        f"{row['success_rate']['mean']:.1%} [{low:.1%}, {high:.1%}]  "
+                        f"ret assign {row['return_assignment']['mean']:7.2f}  "
+                        f"ret arrival {row['return_arrival']['mean']:6.2f}  one never "
+                        f"{row['one_never_arrives']['mean']:.1%}  turned away "
+                        f"{row['turned_away']['mean']:.1%}"
+                    )
+        verdict = study["verdict"]
+        lines.append(
+            f"literal reward misspecified (more of its return, less success) in "
+            f"{verdict['cases_misspecified']} of {verdict['cases']} mode x condition cases"
+        )
+    return "\n".join(lines)
+
+
+def plot_study(study: dict, path: Path) -> None:
+    """Success vs assignment-reward return, one point per trained seed and reward (colour:
+    trained reward, marker: mode), one panel per condition; exact-DP optima as stars."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    colours = {"per_step": "tab:red", "arrival": "tab:blue"}
+    markers = {"independent": "o", "comm": "s", "full": "^"}
+    dp = study["exact_dp"]
+    optima = [
+        ("finite_horizon", "per_step", "DP, assignment, with clock", "*"),
+        ("stationary", "per_step", "DP, assignment, no clock", "P"),
+        ("finite_horizon", "arrival", "DP, arrival", "X"),
+    ]
+    legend = [
+        Line2D(
+            [], [], ls="", marker="o", color=colours["per_step"], label="trained on assignment rew."
+        ),
+        Line2D(
+            [], [], ls="", marker="o", color=colours["arrival"], label="trained on arrival rew."
+        ),
+    ]
+    legend += [
+        Line2D([], [], ls="", marker=marker, color="grey", label=mode)
+        for mode, marker in markers.items()
+    ]
+    legend += [
+        Line2D([], [], ls="", marker=marker, ms=9, mfc="none", mec="black", label=label)
+        for _, _, label, marker in optima
+    ]
+    with plt.rc_context({"font.size": 9, "legend.fontsize": 8}):
+        figure, axes = plt.subplots(1, 2, figsize=(6.5, 3.8), sharey=True, layout="constrained")
+        for axis, condition in zip(axes, CONDITIONS, strict=True):
+            for reward, modes in study.get("learned", {}).items():
+                for mode, entry in modes.items():
+                    row = entry[condition]
+                    axis.scatter(
+                        row["return_assignment"]["per_seed"],
+                        row["success_rate"]["per_seed"],
+                        c=colours[reward],
+                        marker=markers[mode],
+                        s=22,
+                        alpha=0.75,
+                    )
+            for problem, reward, _, marker in optima:
+                row = dp[problem][reward]
+                axis.scatter(
+                    row["return_assignment"], row["success_rate"], marker=marker, s=90,
+                    facecolors="none", edgecolors="black",
+                )  # fmt: skip
+            epsilon = study["protocol"]["conditions"][condition]
+            axis.set_title("greedy" if condition == "greedy" else f"epsilon = {epsilon}")
+            axis.set_xlabel("mean return, assignment's reward")
+            axis.grid(alpha=0.3)
+        axes[0].set_ylabel("success rate (one point per seed)")
+        axes[0].set_ylim(-0.03, 1.05)
+        figure.legend(handles=legend, loc="outside lower center", ncol=3, frameon=False)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        figure.savefig(path, dpi=150, metadata={"Software": None})
+        plt.close(figure)
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    add = parser.add_argument
+    add("--per_step_models", type=Path, default=STUDY_DIR / "per_step" / "agent_models",
+        help="agent_models folder of the batch trained on the assignment's reward "
+             "(default: results/studies/reward/per_step/agent_models)")  # fmt: skip
+    add("--arrival_models", type=Path, default=STUDY_DIR / "arrival" / "agent_models",
+        help="agent_models folder of the batch trained on the arrival reward "
+             "(default: results/studies/reward/arrival/agent_models)")  # fmt: skip
+    add("--output_dir", type=Path, default=STUDY_DIR,
+        help="where reward_study.json and .png go (default: results/studies/reward)")  # fmt: skip
+    add("--num_episodes", type=int, default=1000, help="test episodes per seed (default 1000)")
+    add("--epsilon", type=float, default=EVAL_EPSILON,
+        help="exploration rate of the epsilon-greedy condition (default %(default)s)")  # fmt: skip
+    add("--map_seed", type=int, default=DEFAULT_MAP_SEED,
+        help="map of the DP; the batches must be trained on it (default %(default)s)")  # fmt: skip
+    add("--gamma", type=float, default=joint_dp.GAMMA,
+        help="discount of the DP, in (0, 1) (default %(default)s)")  # fmt: skip
+    add("--max_steps", type=int, default=joint_dp.HORIZON,
+        help="episode length of the DP and the evaluation (default %(default)s)")  # fmt: skip
+    add("--dp_only", action="store_true", help="compute the exact DP only (no trained agents)")
+    args = parser.parse_args(argv)
+    if args.num_episodes < 1:
+        parser.error(f"--num_episodes must be a positive integer, got {args.num_episodes}")
+    if not 0 <= args.epsilon <= 1:
+        parser.error(f"--epsilon must lie in [0, 1], got {args.epsilon}")
+    if not 0 < args.gamma < 1:
+        parser.error(f"--gamma must lie in (0, 1), got {args.gamma}")
+    if args.max_steps < 1:
+        parser.error(f"--max_steps must be a positive integer, got {args.max_steps}")
+    if not args.dp_only:
+        for flag in ("per_step_models", "arrival_models"):
+            if not getattr(args, flag).is_dir():
+                parser.error(f"--{flag}: folder {getattr(args, flag)} does not exist")
+    return args
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = parse_args(argv)
+    torch.set_num_threads(1)
+    grid = generate_map((10, 10), args.map_seed)
+    folders = (
+        {} if args.dp_only else {"per_step": args.per_step_models, "arrival": args.arrival_models}
+    )
+    batches = {
+        reward: open_batch(folder, reward, grid, args.max_steps)
+        for reward, folder in folders.items()
+    }  # checked before any work
+    study: dict = {
+        "protocol": {
+            "map_seed": args.map_seed,
+            "grid": grid.tolist(),
+            "target": [int(i) for i in np.argwhere(grid == TARGET)[0]],
+            "max_steps": args.max_steps,
+            "test_episodes": args.num_episodes,
+            "evaluation_seed": EVAL_SEED,
+            "conditions": {"greedy": 0.0, "epsilon": args.epsilon},
+            "statistics": "mean over training seeds, 95 % percentile bootstrap CI over seeds",
+            "measures": MEASURES,
+        },
+        "exact_dp": exact_dp(grid, args.gamma, args.max_steps),
+        "shaping_check": shaping_check(grid, args.gamma, args.max_steps),
+    }
+    if batches:
+        study["learned"] = {
+            reward: seed_summary(
+                evaluate_batch(batch, grid, args.max_steps, args.num_episodes, args.epsilon)
+            )
+            for reward, batch in batches.items()
+        }
+        study["verdict"] = verdicts(study["learned"])
+    print(format_table(study))
+    write_json_atomic(args.output_dir / "reward_study.json", study)
+    plot_study(study, args.output_dir / "reward_study.png")
+    print(f"wrote {args.output_dir}")
+    return study
+
+
+if __name__ == "__main__":
+    main()
