@@ -9,6 +9,7 @@ no orphan keeps training or writing. No multiprocessing Manager process is used.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import os
 import queue
@@ -30,10 +31,8 @@ def _start_worker(parent_pipe: Any, progress_queue: Any) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     def exit_when_parent_is_gone() -> None:
-        try:
+        with contextlib.suppress(EOFError, OSError):
             parent_pipe.recv()  # the parent never sends: this returns only by EOFError
-        except (EOFError, OSError):
-            pass
         os._exit(1)
 
     threading.Thread(target=exit_when_parent_is_gone, daemon=True).start()

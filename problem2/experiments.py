@@ -378,9 +378,8 @@ def first_missing_ancestor(path: Path) -> Path | None:
 
 def remove_if_empty(folder: Path | None) -> None:
     """Delete ``folder`` if it holds nothing but empty folders (what a failed batch made)."""
-    if folder is not None and folder.is_dir():
-        if not any(path.is_file() for path in folder.rglob("*")):
-            shutil.rmtree(folder, ignore_errors=True)
+    if folder is not None and folder.is_dir() and not any(p.is_file() for p in folder.rglob("*")):
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 # ------------------------------------------------------------------------------- figures
