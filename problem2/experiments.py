@@ -112,7 +112,7 @@ def check_output_dir(cfg: TrainConfig) -> None:
         if differences:
             raise SettingError(
                 "output_dir",
-                f"holds a batch with other settings ({'; '.join(differences[:5])}): {remedy}",
+                f"holds a batch with other settings ({'; '.join(differences)}): {remedy}",
                 cfg.output_dir,
             )
     is_default_folder = root == DEFAULT_OUTPUT_DIR.resolve()
@@ -121,7 +121,7 @@ def check_output_dir(cfg: TrainConfig) -> None:
         raise SettingError(
             "output_dir",
             "is the default results folder (the committed results of the default settings), "
-            f"and these settings differ ({'; '.join(default_differences[:5])}): {remedy}",
+            f"and these settings differ ({'; '.join(default_differences)}): {remedy}",
             cfg.output_dir,
         )
     if not manifest.is_file() and holds_results(root) and not is_default_folder:

@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from grid_maps import generate_map
+
 MODES = ("independent", "comm", "full")
 DEFAULT_OUTPUT_DIR = Path(__file__).resolve().parent / "results"
 MAX_SEED = 2**32 - 1
@@ -273,7 +275,7 @@ FIELD_CHECKS: dict[str, Check] = {
     "hidden_dim": _int_in(1),
     "target_update": _int_in(1),
     "buffer_size": _int_in(1),
-    "learning_starts": _int_in(1),
+    "learning_starts": _int_in(0),
     "updates_per_step": _int_in(1),
     "max_grad_norm": _number_in(0.0, math.inf, low_open=True, high_open=True),
     "comm_learning": _one_of("dial", "none"),
@@ -308,6 +310,10 @@ def cross_field_problems(cfg: TrainConfig) -> list[tuple[tuple[str, ...], str]]:
                 f"must be below total_steps {cfg.total_steps} (else nothing is learned)",
             )
         )
+    try:
+        generate_map(cfg.grid_shape(), cfg.map_seed)
+    except ValueError as error:
+        problems.append((("map_seed",), f"gives no usable map on this grid ({error})"))
     return problems
 
 
