@@ -83,3 +83,19 @@ def remove_stale_temporaries(folder: str | Path) -> list[Path]:
             path.unlink()
         removed.append(path)
     return removed
+
+
+def first_missing_ancestor(path: Path) -> Path | None:
+    """The outermost folder of ``path`` (or itself) that does not exist yet."""
+    missing = None
+    for folder in (path, *path.parents):
+        if folder.exists():
+            break
+        missing = folder
+    return missing
+
+
+def remove_if_empty(folder: Path | None) -> None:
+    """Delete ``folder`` if it holds nothing but empty folders (what a failed batch made)."""
+    if folder is not None and folder.is_dir() and not any(p.is_file() for p in folder.rglob("*")):
+        shutil.rmtree(folder, ignore_errors=True)

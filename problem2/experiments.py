@@ -29,7 +29,13 @@ from typing import Any
 
 import numpy as np
 import torch
-from _atomic import remove_stale_temporaries, temporary_path_for, write_json_atomic
+from _atomic import (
+    first_missing_ancestor,
+    remove_if_empty,
+    remove_stale_temporaries,
+    temporary_path_for,
+    write_json_atomic,
+)
 from batch_workers import ProgressLine, run_jobs
 from matplotlib.figure import Figure
 from models import export_policy
@@ -364,22 +370,6 @@ def keep_interrupted(staging: Path, root: Path) -> None:
     if staging.is_dir():
         shutil.rmtree(root / INTERRUPTED, ignore_errors=True)
         os.replace(staging, root / INTERRUPTED)
-
-
-def first_missing_ancestor(path: Path) -> Path | None:
-    """The outermost folder of ``path`` (or itself) that does not exist yet."""
-    missing = None
-    for folder in (path, *path.parents):
-        if folder.exists():
-            break
-        missing = folder
-    return missing
-
-
-def remove_if_empty(folder: Path | None) -> None:
-    """Delete ``folder`` if it holds nothing but empty folders (what a failed batch made)."""
-    if folder is not None and folder.is_dir() and not any(p.is_file() for p in folder.rglob("*")):
-        shutil.rmtree(folder, ignore_errors=True)
 
 
 # ------------------------------------------------------------------------------- figures
