@@ -1,105 +1,157 @@
-"""Run a batch of training runs (modes x seeds) in parallel and write their outputs.
+"""Run a batch of training runs (modes x seeds) and install its outputs as one whole.
 
-Used by ``python train.py``. For ``output_dir`` (default ``results``) it writes:
+Used by ``python train.py``. For ``output_dir`` (default ``problem2/results``) it writes:
 
 * ``agent_models/<mode>_seed<seed>_agent_{A,B}.pt``: TorchScript, mask included;
-  ``agent_models/<mode>_agent_{A,B}.pt``: the best seed of each mode (by the final
-  evaluation at ε = 0.05); ``agent_models/map.json``; ``agent_models/hyperparameters.json``.
-* ``training_logs/<mode>_seed<seed>.csv``: one row per periodic evaluation;
-  ``training_logs/<mode>_seed<seed>_final.json``: the final evaluation;
-  ``training_logs/training_curves.png``; ``training_logs/timing.json`` (wall times,
-  the only output that differs between identical reruns).
+  ``agent_models/<mode>_agent_{A,B}.pt``: the best seed of each mode (by the selection
+  evaluation on validation episodes); ``agent_models/manifest.json`` (the batch: modes,
+  seeds, map, every hyperparameter, code version, sha256 of every model);
+  ``agent_models/map.json``; ``agent_models/hyperparameters.json``.
+* ``training_logs/<mode>_seed<seed>.csv``: one row per periodic evaluation (appended as
+  measured); ``training_logs/<mode>_seed<seed>_selection.json``: the selection evaluation;
+  ``training_logs/training_curves.png``; ``training_logs/timing.json`` (wall times, the
+  only output that differs between identical reruns).
+
+Everything is written into ``<output_dir>/.staging.<pid>/`` and moved into place when the
+whole batch has finished (see ``OUTPUT_RULE`` in ``train_config.py`` for the full rule).
 """
 
 from __future__ import annotations
 
 import csv
-import io
-import multiprocessing as mp
-import queue
+import hashlib
+import json
+import os
 import shutil
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-from _atomic import temporary_path_for, write_json_atomic
+from _atomic import (
+    first_missing_ancestor,
+    remove_if_empty,
+    remove_stale_temporaries,
+    temporary_path_for,
+    write_json_atomic,
+)
+from batch_workers import ProgressLine, run_jobs
 from matplotlib.figure import Figure
 from models import export_policy
-from multi_agent_env import MultiAgentEnv, generate_map, save_map
-from rollout import EVAL_EPSILON, EVAL_SEED, run_episodes, summarize
-from train_config import TrainConfig
+from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv, generate_map, save_map
+from rollout import EVAL_EPSILON, VALIDATION_SEED, run_episodes, summarize
+from train_config import DEFAULT_OUTPUT_DIR, SettingError, TrainConfig
 from trainer import MultiAgentTrainer
 
 PROBLEM2 = Path(__file__).resolve().parent
+MANIFEST = "manifest.json"
+INTERRUPTED = "interrupted"
 MODE_COLOURS = {"independent": "#1b9e77", "comm": "#d95f02", "full": "#7570b3"}
-
-
-def output_paths(cfg: TrainConfig) -> tuple[Path, Path]:
-    """(agent_models/, training_logs/) under ``cfg.output_dir`` (relative to problem2/)."""
-    root = Path(cfg.output_dir)
-    root = root if root.is_absolute() else PROBLEM2 / root
-    return root / "agent_models", root / "training_logs"
+PER_RUN_SETTINGS = ("mode", "seed", "num_seeds", "seeds")  # the manifest lists modes, seeds
 
 
 def run_name(mode: str, seed: int) -> str:
     return f"{mode}_seed{seed}"
 
 
-def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    """Rows of equal keys to CSV, atomically."""
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]), lineterminator="\n")
-    writer.writeheader()
-    writer.writerows(rows)
-    with temporary_path_for(path) as temporary:
-        temporary.write_text(buffer.getvalue())
+def output_root(cfg: TrainConfig) -> Path:
+    """``cfg.output_dir`` as an absolute path (a relative one is relative to the current folder)."""
+    return Path(cfg.output_dir).resolve()
+
+
+# ------------------------------------------------------------------ which folder may be used
+def batch_identity(cfg: TrainConfig) -> dict[str, Any]:
+    """What a batch is, as the manifest records it (compared to decide replace vs refuse)."""
+    hyperparameters = cfg.hyperparameters()
+    return {
+        "modes": cfg.run_modes(),
+        "seeds": cfg.run_seeds(),
+        "map_seed": cfg.map_seed,
+        "reward_mode": cfg.reward_mode,
+        "hyperparameters": hyperparameters,
+    }
+
+
+def identity_differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    """``key old -> new`` for each setting in which two batch identities differ."""
+    flat = [
+        {k: v for k, v in ident.get("hyperparameters", {}).items() if k not in PER_RUN_SETTINGS}
+        | {"modes": ident.get("modes"), "seeds": ident.get("seeds")}
+        for ident in (old, new)
+    ]
+    keys = sorted(set(flat[0]) | set(flat[1]))
+    return [
+        f"{k} {flat[0].get(k)!r} -> {flat[1].get(k)!r}"
+        for k in keys
+        if flat[0].get(k) != flat[1].get(k)
+    ]
+
+
+def holds_results(root: Path) -> bool:
+    """Whether ``root`` has visible files in agent_models/ or training_logs/."""
+    return any(
+        not path.name.startswith(".")
+        for sub in ("agent_models", "training_logs")
+        if (root / sub).is_dir()
+        for path in (root / sub).iterdir()
+    )
+
+
+def check_output_dir(cfg: TrainConfig) -> None:
+    """Refuse (SettingError on output_dir) before any work when this batch would replace a
+    batch with other settings, or put non-default settings into the default folder,
+    unless ``cfg.overwrite``. A batch with identical settings is replaced."""
+    root = output_root(cfg)
+    if root.exists() and not root.is_dir():
+        raise SettingError("output_dir", "must be a folder, not a file", cfg.output_dir)
+    if cfg.overwrite:
+        return
+    remedy = "choose another --output_dir, or pass --overwrite to replace it"
+    new = batch_identity(cfg)
+    manifest = root / "agent_models" / MANIFEST
+    if manifest.is_file():
+        try:
+            differences = identity_differences(json.loads(manifest.read_text("utf-8")), new)
+        except (OSError, ValueError, AttributeError):
+            differences = ["its manifest.json is unreadable"]
+        if differences:
+            raise SettingError(
+                "output_dir",
+                f"holds a batch with other settings ({'; '.join(differences)}): {remedy}",
+                cfg.output_dir,
+            )
+    is_default_folder = root == DEFAULT_OUTPUT_DIR.resolve()
+    default_differences = identity_differences(batch_identity(TrainConfig()), new)
+    if is_default_folder and default_differences:
+        raise SettingError(
+            "output_dir",
+            "is the default results folder (the committed results of the default settings), "
+            f"and these settings differ ({'; '.join(default_differences)}): {remedy}",
+            cfg.output_dir,
+        )
+    if not manifest.is_file() and holds_results(root) and not is_default_folder:
+        raise SettingError(
+            "output_dir",
+            f"holds results without a manifest.json (of an unknown batch): {remedy}",
+            cfg.output_dir,
+        )
+
+
+# ------------------------------------------------------------------------------- one run
+def append_csv_row(path: Path, row: dict[str, Any]) -> None:
+    """Append one log row (the header first if the file is new), flushed at once."""
+    new = not path.exists()
+    with open(path, "a", newline="", encoding="utf-8") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(row), lineterminator="\n")
+        if new:
+            writer.writeheader()
+        writer.writerow(row)
 
 
 def read_csv(path: Path) -> list[dict[str, float]]:
-    with open(path, newline="") as handle:
+    with open(path, newline="", encoding="utf-8") as handle:
         return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(handle)]
-
-
-def train_one(cfg: TrainConfig, mode: str, seed: int, progress_queue: Any = None) -> dict:
-    """Train one (mode, seed), save its models, log and final evaluation; return the latter."""
-    torch.set_num_threads(1)
-    run_cfg = TrainConfig(**{**cfg.to_dict(), "mode": mode, "seed": seed, "seeds": []})
-    env = MultiAgentEnv(
-        grid_size=(cfg.grid_size, cfg.grid_size),
-        max_steps=cfg.max_steps,
-        seed=cfg.map_seed,
-        reward_mode=cfg.reward_mode,
-    )
-    trainer = MultiAgentTrainer(env, run_cfg)
-    name = run_name(mode, seed)
-    models_dir, logs_dir = output_paths(cfg)
-    start = time.perf_counter()
-
-    def report(row: dict[str, Any]) -> None:
-        if progress_queue is not None:
-            progress_queue.put((name, row, time.perf_counter() - start))
-        if cfg.save_freq and row["env_steps"] % cfg.save_freq < cfg.eval_interval:
-            save_models(trainer, models_dir, name)
-
-    trainer.train(report)
-    save_models(trainer, models_dir, name)
-    write_csv(logs_dir / f"{name}.csv", trainer.log)
-    final: dict[str, Any] = {"mode": mode, "seed": seed}
-    for label, epsilon in (("greedy", 0.0), ("eps", EVAL_EPSILON)):
-        eval_env = trainer._make_env(500, None)
-        episodes = run_episodes(
-            eval_env, trainer.policy(epsilon), cfg.final_eval_episodes, seed=EVAL_SEED, record=True
-        )
-        final[label] = {
-            "epsilon": epsilon,
-            **episode_statistics(episodes, eval_env.target_position),
-        }
-    write_json_atomic(logs_dir / f"{name}_final.json", final)
-    final["seconds"] = time.perf_counter() - start
-    return final
 
 
 def save_models(trainer: MultiAgentTrainer, models_dir: Path, name: str) -> None:
@@ -107,6 +159,74 @@ def save_models(trainer: MultiAgentTrainer, models_dir: Path, name: str) -> None
         export_policy(
             trainer.online.agent(index), trainer.mode, models_dir / f"{name}_agent_{agent}.pt"
         )
+
+
+def train_one(
+    cfg: TrainConfig, mode: str, seed: int, models_dir: Path, logs_dir: Path, progress: Any = None
+) -> dict[str, Any]:
+    """Train one (mode, seed) into ``models_dir`` / ``logs_dir``, run its selection
+    evaluation and return it. ``progress.put((name, row, seconds))`` gets each log row."""
+    torch.set_num_threads(1)
+    run_cfg = TrainConfig(
+        **{**cfg.to_dict(), "mode": mode, "seed": seed, "seeds": [], "workers": 1}
+        | {"output_dir": str(models_dir.parent)}
+    )
+    env = MultiAgentEnv(
+        grid_size=cfg.grid_shape(),
+        max_steps=cfg.max_steps,
+        seed=cfg.map_seed,
+        reward_mode=cfg.reward_mode,
+    )
+    trainer = MultiAgentTrainer(env, run_cfg)
+    # A trainer that saves its own models and appends its own CSV rows has models_dir and
+    # logs_dir; for one that does not, this function does both.
+    trainer_writes = hasattr(trainer, "logs_dir")
+    if trainer_writes:
+        trainer.models_dir, trainer.logs_dir = models_dir, logs_dir
+    name = run_name(mode, seed)
+    start = time.perf_counter()
+
+    def report(row: dict[str, Any]) -> None:
+        if not trainer_writes:
+            append_csv_row(logs_dir / f"{name}.csv", row)
+        if progress is not None:
+            progress.put((name, row, time.perf_counter() - start))
+        if cfg.save_freq and row["env_steps"] % cfg.save_freq < cfg.eval_interval:
+            save_models(trainer, models_dir, name)
+
+    trainer.train(report)
+    if not trainer_writes:
+        save_models(trainer, models_dir, name)
+    selection = selection_evaluation(trainer, cfg, env)
+    write_json_atomic(logs_dir / f"{name}_selection.json", {"mode": mode, "seed": seed} | selection)
+    return {"mode": mode, "seed": seed, **selection, "seconds": time.perf_counter() - start}
+
+
+def selection_evaluation(
+    trainer: MultiAgentTrainer, cfg: TrainConfig, env: MultiAgentEnv
+) -> dict[str, Any]:
+    """Greedy and ε = 0.05 results on ``cfg.final_eval_episodes`` validation episodes, and
+    the score that picks the best seed (by ``cfg.select_by``)."""
+    result: dict[str, Any] = {"select_by": cfg.select_by, "validation_seed": VALIDATION_SEED}
+    for label, epsilon in (("greedy", 0.0), ("eps", EVAL_EPSILON)):
+        eval_env = VectorMultiAgentEnv(
+            min(cfg.final_eval_episodes, 500),
+            grid=env.grid,
+            obs_window=env.obs_window,
+            max_steps=env.max_steps,
+            reward_mode=cfg.reward_mode,
+        )
+        policy = trainer.policy(epsilon)
+        episodes = run_episodes(
+            eval_env, policy, cfg.final_eval_episodes, seed=VALIDATION_SEED, record=True
+        )
+        result[label] = {
+            "epsilon": epsilon,
+            **episode_statistics(episodes, eval_env.target_position),
+        }
+    metric = "success_rate" if cfg.select_by == "success" else "mean_return"
+    result["score"] = (result["greedy"][metric] + result["eps"][metric]) / 2
+    return result
 
 
 def episode_statistics(episodes: Any, target: tuple[int, int]) -> dict[str, Any]:
@@ -124,103 +244,135 @@ def episode_statistics(episodes: Any, target: tuple[int, int]) -> dict[str, Any]
     return summary
 
 
+# ------------------------------------------------------------------------------ the batch
 def run_experiments(cfg: TrainConfig) -> list[dict[str, Any]]:
-    """Train every (mode, seed) of ``cfg`` in ``cfg.workers`` processes and write all outputs."""
-    models_dir, logs_dir = output_paths(cfg)
-    models_dir.mkdir(parents=True, exist_ok=True)
-    logs_dir.mkdir(parents=True, exist_ok=True)
-    save_map(models_dir / "map.json", generate_map((cfg.grid_size, cfg.grid_size), cfg.map_seed))
-    write_json_atomic(models_dir / "hyperparameters.json", cfg.to_dict())
-    jobs = [(mode, seed) for mode in cfg.run_modes() for seed in cfg.run_seeds()]
-    finals = _run_parallel(cfg, jobs)
+    """Train every (mode, seed) of ``cfg`` in ``cfg.workers`` processes into a staging
+    folder, then install it into ``cfg.output_dir`` (whole or not at all).
 
+    On KeyboardInterrupt the staging folder becomes ``<output_dir>/interrupted/`` (its CSV
+    rows are what was measured) and the error is re-raised; on any other error it is
+    deleted, with the output folder itself if this batch created it."""
+    cfg.validate()
+    check_output_dir(cfg)
+    root = output_root(cfg)
+    created = first_missing_ancestor(root)
+    for folder in (root, root / "agent_models", root / "training_logs"):
+        remove_stale_temporaries(folder)
+    staging = root / f".staging.{os.getpid()}"
+    models_dir, logs_dir = staging / "agent_models", staging / "training_logs"
+    try:
+        shutil.rmtree(staging, ignore_errors=True)
+        models_dir.mkdir(parents=True)
+        logs_dir.mkdir()
+        finals = train_batch(cfg, models_dir, logs_dir)
+        install(staging, root)
+    except KeyboardInterrupt:
+        keep_interrupted(staging, root)
+        raise
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        remove_if_empty(created)
+        raise
+    return finals
+
+
+def train_batch(cfg: TrainConfig, models_dir: Path, logs_dir: Path) -> list[dict[str, Any]]:
+    """Every run, then the best pairs, the curves, timing and (last) the manifest."""
+    save_map(models_dir / "map.json", generate_map(cfg.grid_shape(), cfg.map_seed))
+    write_json_atomic(models_dir / "hyperparameters.json", cfg.hyperparameters())
+    jobs = [(mode, seed) for mode in cfg.run_modes() for seed in cfg.run_seeds()]
+    progress = ProgressLine(len(jobs), cfg.total_steps)
+    finals = run_jobs(
+        train_one, [(cfg, mode, seed, models_dir, logs_dir) for mode, seed in jobs], cfg.workers,
+        progress,
+    )  # fmt: skip
     write_json_atomic(
         logs_dir / "timing.json",
         {run_name(f["mode"], f["seed"]): round(f.pop("seconds"), 1) for f in finals},
     )
+    best = {}
     for mode in cfg.run_modes():
         runs = [f for f in finals if f["mode"] == mode]
-        best = max(
-            runs, key=lambda f: (f["eps"]["success_rate"], f["greedy"]["success_rate"], -f["seed"])
-        )
+        winner = max(runs, key=lambda f: (f["score"], -f["seed"]))
+        best[mode] = run_name(mode, winner["seed"])
         for agent in "AB":
-            source = models_dir / f"{run_name(mode, best['seed'])}_agent_{agent}.pt"
             with temporary_path_for(models_dir / f"{mode}_agent_{agent}.pt") as temporary:
-                shutil.copyfile(source, temporary)
+                shutil.copyfile(models_dir / f"{best[mode]}_agent_{agent}.pt", temporary)
     title = (
         f"Training progress on map seed {cfg.map_seed}"
         + (f" (reward {cfg.reward_mode})" if cfg.reward_mode != "arrival" else "")
         + (", untrained messages" if cfg.comm_learning == "none" else "")
     )
     plot_training_curves(logs_dir, cfg.run_modes(), cfg.run_seeds(), title)
+    write_json_atomic(models_dir / MANIFEST, manifest(cfg, finals, best, models_dir))
     return finals
 
 
-def _run_parallel(cfg: TrainConfig, jobs: list[tuple[str, int]]) -> list[dict[str, Any]]:
-    """Run ``jobs`` in a process pool, printing one progress line for the whole batch."""
-    progress = ProgressLine(len(jobs), cfg.total_steps)
-    if cfg.workers <= 1 or len(jobs) == 1:
-        finals = []
-        for mode, seed in jobs:
-            finals.append(train_one(cfg, mode, seed, progress))
-            progress.runs_done += 1
-        progress.close()
-        return finals
-    context = mp.get_context("spawn")  # fresh interpreters: no inherited torch thread state
-    with context.Manager() as manager, context.Pool(min(cfg.workers, len(jobs))) as pool:
-        progress_queue = manager.Queue()
-        pending = [
-            pool.apply_async(train_one, (cfg, mode, seed, progress_queue)) for mode, seed in jobs
-        ]
-        while not all(p.ready() for p in pending):
-            progress.runs_done = sum(p.ready() for p in pending)
-            try:
-                progress.put(progress_queue.get(timeout=1.0))
-            except queue.Empty:
-                progress.show()
-        finals = [p.get() for p in pending]
-    progress.close()
-    return finals
+def manifest(
+    cfg: TrainConfig, finals: list[dict[str, Any]], best: dict[str, str], models_dir: Path
+) -> dict[str, Any]:
+    """The batch record that evaluate.py reads (format in the lead's CONTRACTS)."""
+    runs = {}
+    for final in finals:
+        name = run_name(final["mode"], final["seed"])
+        files = {agent: f"{name}_agent_{agent}.pt" for agent in "AB"}
+        metric = "success_rate" if cfg.select_by == "success" else "mean_return"
+        runs[name] = {
+            "mode": final["mode"],
+            "seed": final["seed"],
+            "models": files,
+            "sha256": {a: file_sha256(models_dir / f) for a, f in files.items()},
+            "selection": {
+                "metric": metric,
+                "greedy": final["greedy"][metric],
+                "eps": final["eps"][metric],
+                "score": final["score"],
+            },
+        }
+    return {"format": 1, **batch_identity(cfg), "code_version": code_version()} | {
+        "runs": runs,
+        "best": best,
+    }
 
 
-class ProgressLine:
-    """One terminal line for a batch of runs: runs finished, env steps, speed, ETA and the
-    latest evaluation. ``put`` takes the ``(run name, log row, seconds)`` the runs report."""
-
-    def __init__(self, n_runs: int, steps_per_run: int) -> None:
-        self.n_runs, self.steps_per_run, self.runs_done = n_runs, steps_per_run, 0
-        self.start = time.perf_counter()
-        self.rows: dict[str, dict[str, Any]] = {}
-        self.latest = ""
-
-    def put(self, item: tuple[str, dict[str, Any], float]) -> None:
-        self.latest, row, _ = item
-        self.rows[self.latest] = row
-        self.show()
-
-    def show(self) -> None:
-        total = self.n_runs * self.steps_per_run
-        done = sum(min(row["env_steps"], self.steps_per_run) for row in self.rows.values())
-        elapsed = time.perf_counter() - self.start
-        rate = done / elapsed if elapsed > 0 else 0.0
-        eta = f"{(total - done) / rate / 60:4.1f} min" if rate > 0 else "  ?"
-        line = (
-            f"\r[{self.runs_done}/{self.n_runs} runs] {done:,}/{total:,} env steps  "
-            f"{rate:,.0f} steps/s  ETA {eta}"
-        )
-        if self.latest:
-            row = self.rows[self.latest]
-            line += (
-                f" | {self.latest} ε {row['epsilon']:.2f}  success ε=0.05 "
-                f"{row['eval_success_eps']:.2f} greedy {row['eval_success_greedy']:.2f}"
-            )
-        print(line.ljust(150), end="", file=sys.stderr, flush=True)
-
-    def close(self) -> None:
-        self.show()
-        print(file=sys.stderr)
+def file_sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+def code_version() -> str:
+    """sha256 over problem2/*.py in name order: each file's name, a NUL byte, its UTF-8
+    source with line ends normalised to \\n, a NUL byte."""
+    digest = hashlib.sha256()
+    for path in sorted(PROBLEM2.glob("*.py"), key=lambda p: p.name):
+        source = path.read_bytes().replace(b"\r\n", b"\n")
+        digest.update(path.name.encode("utf-8") + b"\0" + source + b"\0")
+    return digest.hexdigest()
+
+
+def install(staging: Path, root: Path) -> None:
+    """Move the finished batch into ``root``, replacing the previous one. agent_models/ goes
+    last: its manifest marks a complete batch (readers find either the old one, none, or
+    the new one)."""
+    replaced = root / f".replaced.{os.getpid()}"
+    for sub in ("training_logs", "agent_models"):
+        if (root / sub).exists():
+            replaced.mkdir(exist_ok=True)
+            os.replace(root / sub, replaced / sub)
+        os.replace(staging / sub, root / sub)
+    shutil.rmtree(replaced, ignore_errors=True)
+    shutil.rmtree(staging, ignore_errors=True)
+    shutil.rmtree(root / INTERRUPTED, ignore_errors=True)  # superseded by a whole batch
+
+
+def keep_interrupted(staging: Path, root: Path) -> None:
+    """Keep what an interrupted batch measured in ``root/interrupted`` (no manifest, so no
+    reader takes it for results)."""
+    if staging.is_dir():
+        shutil.rmtree(root / INTERRUPTED, ignore_errors=True)
+        os.replace(staging, root / INTERRUPTED)
+
+
+# ------------------------------------------------------------------------------- figures
 def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], title: str) -> Path:
     """Evaluation return and success rate against env steps, mean over seeds, min–max band."""
     fig = Figure(figsize=(12, 4.4), layout="constrained")
@@ -228,20 +380,16 @@ def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], tit
     panels = (("eval_return_eps", "average episode reward"), ("eval_success_eps", "success rate"))
     for mode in modes:
         logs = [read_csv(logs_dir / f"{run_name(mode, seed)}.csv") for seed in seeds]
-        steps = np.array([row["env_steps"] for row in logs[0]])
+        length = min(len(log) for log in logs)
+        steps = np.array([row["env_steps"] for row in logs[0][:length]])
         for ax, (key, _) in zip(axes, panels, strict=True):
-            values = np.array([[row[key] for row in log] for log in logs])
-            ax.plot(steps, values.mean(axis=0), color=MODE_COLOURS.get(mode), label=mode)
-            ax.fill_between(
-                steps,
-                values.min(axis=0),
-                values.max(axis=0),
-                color=MODE_COLOURS.get(mode),
-                alpha=0.2,
-            )
+            values = np.array([[row[key] for row in log[:length]] for log in logs])
+            colour = MODE_COLOURS.get(mode)
+            ax.plot(steps, values.mean(axis=0), color=colour, label=mode)
+            ax.fill_between(steps, values.min(axis=0), values.max(axis=0), color=colour, alpha=0.2)
     for ax, (_, label) in zip(axes, panels, strict=True):
         ax.set_xlabel("environment steps")
-        ax.set_ylabel(f"{label} (evaluation, ε = 0.05)")
+        ax.set_ylabel(f"{label} (validation, ε = 0.05)")
         ax.grid(True, alpha=0.3)
     axes[1].set_ylim(0, 1)
     axes[0].legend(title=f"mode (mean of {len(seeds)} seeds, band min–max)")
@@ -252,4 +400,4 @@ def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], tit
     return path
 
 
-__all__ = ["plot_training_curves", "run_experiments", "train_one"]
+__all__ = ["check_output_dir", "plot_training_curves", "run_experiments", "train_one"]

@@ -10,6 +10,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import io
+import numbers
 import warnings
 import zipfile
 from collections.abc import Iterator, Sequence
@@ -49,17 +50,25 @@ def observation_mask(mode: str) -> np.ndarray:
     return OBSERVATION_MASKS[mode]
 
 
+def _check_size(name: str, value: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+
+
 class MessagingQNetwork(nn.Module):
     """Shared part: the hidden ReLU layer, the sigmoid message head and ``forward``.
     Subclasses add the Q head(s) and define ``forward_with_logit(x) -> (q, logit)``."""
 
     def __init__(self, input_dim: int, hidden_dim: int) -> None:
         super().__init__()
+        for name, value in (("input_dim", input_dim), ("hidden_dim", hidden_dim)):
+            _check_size(name, value)
         self.hidden = nn.Linear(input_dim, hidden_dim)
         self.message_head = nn.Linear(hidden_dim, 1)
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``x`` [B, input_dim] -> (Q-values [B, num_actions], message [B, 1] in [0, 1])."""
+        """``x`` [B, input_dim] -> (Q-values [B, num_actions], message [B, 1] in [0, 1]);
+        one observation ``x`` [input_dim] -> ([num_actions], [1])."""
         q_values, logit = self.forward_with_logit(x)
         return q_values, torch.sigmoid(logit)
 
@@ -69,6 +78,7 @@ class AgentDQN(MessagingQNetwork):
 
     def __init__(self, input_dim: int = 11, hidden_dim: int = 64, num_actions: int = 5) -> None:
         super().__init__(input_dim, hidden_dim)
+        _check_size("num_actions", num_actions)
         self.q_head = nn.Linear(hidden_dim, num_actions)
 
     def forward_with_logit(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -85,6 +95,7 @@ class DuelingDQN(MessagingQNetwork):
 
     def __init__(self, input_dim: int = 11, hidden_dim: int = 64, num_actions: int = 5) -> None:
         super().__init__(input_dim, hidden_dim)
+        _check_size("num_actions", num_actions)
         self.value_head = nn.Linear(hidden_dim, 1)
         self.advantage_head = nn.Linear(hidden_dim, num_actions)
 
@@ -92,7 +103,7 @@ class DuelingDQN(MessagingQNetwork):
         """``x`` [B, input_dim] -> (Q-values [B, num_actions], message logit [B, 1])."""
         hidden = torch.relu(self.hidden(x))
         advantages = self.advantage_head(hidden)
-        q_values = self.value_head(hidden) + advantages - advantages.mean(dim=1, keepdim=True)
+        q_values = self.value_head(hidden) + advantages - advantages.mean(dim=-1, keepdim=True)
         return q_values, self.message_head(hidden)
 
 

@@ -10,19 +10,77 @@ extra keywords the first push brings, every later push must bring too.
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
+from grid_maps import NUM_ACTIONS
 
 TRANSITION_FIELDS = (
     "state_A", "state_B", "action_A", "action_B", "comm_A", "comm_B",
     "reward", "next_state_A", "next_state_B", "done",
 )  # fmt: skip
+STATE_FIELDS = ("state_A", "state_B", "next_state_A", "next_state_B")
 _INTEGER_FIELDS = ("action_A", "action_B")  # stored as int64; the other required: float32
 
 
 def _positive_int(value: int, name: str) -> int:
-    if isinstance(value, bool) or int(value) != value or value < 1:
+    if not isinstance(value, numbers.Real) or isinstance(value, bool) or not value >= 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if int(value) != value:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
     return int(value)
+
+
+def _as_array(name: str, value: object) -> np.ndarray:
+    """``value`` as an array; a tensor that requires grad is refused by name."""
+    if getattr(value, "requires_grad", False):
+        raise ValueError(
+            f"{name} is a tensor that requires grad; store a plain number (.item() or .detach())"
+        )
+    try:
+        return np.asarray(value)
+    except (TypeError, ValueError, RuntimeError) as error:
+        raise ValueError(f"{name} is not an array of numbers: {error}") from error
+
+
+def check_transitions(arrays: dict[str, np.ndarray]) -> None:
+    """Refuse B transitions whose required fields are malformed, naming the field: states
+    not (B, D) finite with one D for all four, actions not integers in 0..NUM_ACTIONS-1,
+    messages outside [0, 1], rewards not finite, done not boolean (bool or 0/1)."""
+    states = [arrays[name] for name in STATE_FIELDS]
+    for name, value in zip(STATE_FIELDS, states, strict=True):
+        if value.ndim != 2 or value.shape[1] == 0 or value.shape[1:] != states[0].shape[1:]:
+            raise ValueError(
+                f"{name} must be one observation vector per transition with the size of "
+                f"state_A {states[0].shape[1:]}, got per-transition shape {value.shape[1:]}"
+            )
+        if not np.issubdtype(value.dtype, np.number) or not np.isfinite(value).all():
+            raise ValueError(f"{name} must hold finite numbers")
+    for name in TRANSITION_FIELDS:
+        if name not in STATE_FIELDS and arrays[name].ndim != 1:
+            raise ValueError(
+                f"{name} must be one number per transition, got per-transition shape "
+                f"{arrays[name].shape[1:]}"
+            )
+    for name in _INTEGER_FIELDS:
+        value = arrays[name]
+        numeric = np.issubdtype(value.dtype, np.number) and value.dtype != np.bool_
+        if not (numeric and np.all(np.mod(value, 1) == 0)):
+            raise ValueError(f"{name} must be integer actions, got {value[:5].tolist()}")
+        if value.min() < 0 or value.max() >= NUM_ACTIONS:
+            raise ValueError(f"{name} must lie in 0..{NUM_ACTIONS - 1}, got {value[:5].tolist()}")
+    for name in ("comm_A", "comm_B"):
+        value = arrays[name]
+        if not np.issubdtype(value.dtype, np.number) or not ((value >= 0) & (value <= 1)).all():
+            raise ValueError(f"{name} must be a message in [0, 1], got {value[:5].tolist()}")
+    reward = arrays["reward"]
+    if not np.issubdtype(reward.dtype, np.number) or not np.isfinite(reward).all():
+        raise ValueError(f"reward must be a finite number, got {reward[:5].tolist()}")
+    done = arrays["done"]
+    if done.dtype != np.bool_ and not (
+        np.issubdtype(done.dtype, np.number) and np.isin(done, (0, 1)).all()
+    ):
+        raise ValueError(f"done must be boolean (True/False or 0/1), got {done[:5].tolist()}")
 
 
 class ReplayBuffer:
@@ -51,7 +109,7 @@ class ReplayBuffer:
         required = (state_A, state_B, action_A, action_B, comm_A, comm_B, reward,
                     next_state_A, next_state_B, done)
         fields = dict(zip(TRANSITION_FIELDS, required, strict=True)) | extras
-        self.push_batch(**{name: np.asarray(value)[None] for name, value in fields.items()})
+        self.push_batch(**{name: _as_array(name, value)[None] for name, value in fields.items()})
     # fmt: on
 
     def push_batch(self, **arrays: np.ndarray) -> np.ndarray:
@@ -61,13 +119,14 @@ class ReplayBuffer:
         missing = [name for name in TRANSITION_FIELDS if name not in arrays]
         if missing:
             raise ValueError(f"push_batch is missing required fields {missing}")
-        arrays = {name: np.asarray(value) for name, value in arrays.items()}
+        arrays = {name: _as_array(name, value) for name, value in arrays.items()}
         lengths = {value.shape[0] if value.ndim else 0 for value in arrays.values()}
         if len(lengths) != 1 or 0 in lengths:
             raise ValueError(
                 "every field needs the same non-zero leading (batch) dimension; "
                 f"got shapes { {name: a.shape for name, a in arrays.items()} }"
             )
+        check_transitions(arrays)
         if not self._storage:
             self._allocate(arrays)
         self._check_fields(arrays)
@@ -232,7 +291,12 @@ class PrioritizedReplayBuffer(ReplayBuffer):
     def update_priorities(self, indices: np.ndarray, priorities: np.ndarray) -> None:
         """Set the priorities (B,) of slots ``indices`` (B,), e.g. |TD error| + 1e-6.
         Priorities must be positive and finite."""
-        indices = np.asarray(indices, dtype=np.int64).reshape(-1)
+        raw_indices = np.asarray(indices).reshape(-1)
+        if raw_indices.dtype == np.bool_ or not (
+            np.issubdtype(raw_indices.dtype, np.number) and np.all(np.mod(raw_indices, 1) == 0)
+        ):
+            raise ValueError(f"indices must be integers, got {raw_indices[:5].tolist()}")
+        indices = raw_indices.astype(np.int64)
         priorities = np.asarray(priorities, dtype=np.float64).reshape(-1)
         if indices.shape != priorities.shape:
             raise ValueError(f"{len(indices)} indices but {len(priorities)} priorities")
@@ -240,6 +304,12 @@ class PrioritizedReplayBuffer(ReplayBuffer):
             raise ValueError(f"indices must be stored slots in 0..{self._size - 1}")
         if not (np.isfinite(priorities).all() and (priorities > 0).all()):
             raise ValueError("priorities must be positive and finite")
+        # A sample may draw a slot twice; each repeat must carry the same priority.
+        unique, first, inverse = np.unique(indices, return_index=True, return_inverse=True)
+        if len(unique) != len(indices) and not np.array_equal(
+            priorities, priorities[first][inverse]
+        ):
+            raise ValueError("a repeated index must be given the same priority each time")
         self._tree.update(indices, priorities**self.alpha)
         if len(priorities):
             self._max_priority = max(self._max_priority, float(priorities.max()))

@@ -1,8 +1,8 @@
 """Train the two agents of Problem 2: every ablation mode, several seeds, in parallel.
 
     python train.py                      # 3 modes x 5 seeds on the default map (seed 641)
-    python train.py --mode full --seeds 641 642 --total_steps 200000
-    python train.py --help               # every hyperparameter, with its meaning
+    python train.py --mode full --seeds 641 642 --total_steps 200000 --output_dir my_run
+    python train.py --help               # every hyperparameter, with its meaning and range
 
 The learning algorithm is in ``trainer.py`` (:class:`MultiAgentTrainer`, re-exported
 here with :func:`apply_observation_mask`), the hyperparameters in ``train_config.py``,
@@ -11,27 +11,47 @@ and the batch of runs with its outputs in ``experiments.py``.
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
-from experiments import run_experiments
-from train_config import TrainConfig, parse_config
+from experiments import INTERRUPTED, check_output_dir, output_root, run_experiments
+from train_config import TrainConfig, parse_config_or_exit
 from trainer import EVAL_EPSILON, MultiAgentTrainer, apply_observation_mask
 
 __all__ = ["EVAL_EPSILON", "MultiAgentTrainer", "TrainConfig", "apply_observation_mask", "main"]
 
 
+def make_console_safe() -> None:
+    """Let a console without UTF-8 (Windows' cp1252) print every character: what it cannot
+    show becomes '?' instead of a UnicodeEncodeError."""
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="replace")
+
+
 def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
-    """Train every requested mode and seed (in parallel) and write models, logs and curves."""
-    cfg = parse_config(argv)
-    finals = run_experiments(cfg)
-    print(f"{'run':<22} {'success greedy':>15} {'success ε=0.05':>15}")
+    """Train every requested mode and seed (in parallel) and write models, logs and curves.
+    Every setting and the output folder are checked first (a usage error names the flag)."""
+    make_console_safe()
+    cfg = parse_config_or_exit(argv, extra_check=check_output_dir)
+    try:
+        finals = run_experiments(cfg)
+    except KeyboardInterrupt:
+        kept = output_root(cfg) / INTERRUPTED / "training_logs"
+        print(f"\ninterrupted: the rows measured so far are in {kept}", file=sys.stderr)
+        raise
+    print(f"{'run':<22} {'selection: success greedy':>26} {'eps=0.05':>9}")
     for final in finals:
         print(
             f"{final['mode'] + ' seed ' + str(final['seed']):<22} "
-            f"{final['greedy']['success_rate']:15.3f} {final['eps']['success_rate']:15.3f}"
+            f"{final['greedy']['success_rate']:26.3f} {final['eps']['success_rate']:9.3f}"
         )
+    print(f"wrote {output_root(cfg)} (success on validation episodes; evaluate.py tests)")
     return finals
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except KeyboardInterrupt:
+        sys.exit(130)

@@ -1,8 +1,9 @@
 """Hyperparameters of Problem 2's training, in one dataclass that also builds the CLI.
 
-Each field's one-line docstring is its ``--help`` text. Every flag is accepted
-with underscores (the course's spelling, ``--num_episodes``) and with dashes
-(``--num-episodes``).
+Each field's one-line docstring is its ``--help`` text. Every flag is accepted with
+underscores (the course's spelling, ``--num_episodes``) and with dashes (``--num-episodes``);
+every list flag takes its values space- or comma-separated (``--seeds 641 642`` or
+``--seeds 641,642``). :meth:`TrainConfig.validate` checks every field before any work starts.
 """
 
 from __future__ import annotations
@@ -11,10 +12,27 @@ import argparse
 import ast
 import dataclasses
 import inspect
+import math
+import os
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
+from grid_maps import generate_map
+
 MODES = ("independent", "comm", "full")
+DEFAULT_OUTPUT_DIR = Path(__file__).resolve().parent / "results"
+MAX_SEED = 2**32 - 1
+MAX_GRID_SIDE = 100
+RUN_ONLY_FIELDS = ("output_dir", "workers", "overwrite")  # where and how, not what
+
+
+def available_cores() -> int:
+    """Cores this process may run on (the affinity mask where the OS has one)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
 
 
 @dataclass
@@ -22,23 +40,23 @@ class TrainConfig:
     """Everything that defines a training run (one mode, one seed) or a batch of them."""
 
     mode: str = "all"
-    """independent (patch only), comm (+ message), full (+ distance), all, or a list: comm,full"""
+    """independent (patch only), comm (+ message), full (+ distance), all, or a list: comm full"""
     seed: int = 641
     """first training seed; runs use seed, seed + 1, ... unless --seeds is given"""
     num_seeds: int = 5
-    """number of training seeds per mode"""
+    """number of training seeds per mode (1 or more)"""
     seeds: list[int] = field(default_factory=list)
-    """explicit training seeds (overrides --seed and --num_seeds)"""
+    """explicit training seeds, distinct, 0..2^32-1 (overrides --seed and --num_seeds)"""
     map_seed: int = 641
-    """seed of the map (obstacles and target) that every run trains on"""
-    grid_size: int = 10
-    """side of the square grid"""
+    """seed (0..2^32-1) of the map (obstacles and target) that every run trains on"""
+    grid_size: int | list[int] = 10
+    """grid side (--grid_size 10) or rows and columns (--grid_size 10 10), each 3..100"""
     max_steps: int = 50
     """episode time limit (a cut-off, not a terminal state: the TD target bootstraps through it)"""
     reward_mode: str = "arrival"
     """arrival (+2 once per agent on first arrival) or per_step (the literal +2 every step)"""
     total_steps: int = 200_000
-    """environment steps per run, summed over the parallel environments"""
+    """environment steps per run, summed over the parallel environments (1 or more)"""
     num_episodes: int = 0
     """if positive, train for this many finished episodes instead of --total_steps"""
     num_envs: int = 64
@@ -46,51 +64,77 @@ class TrainConfig:
     batch_size: int = 256
     """transitions per gradient update"""
     lr: float = 5e-4
-    """Adam learning rate at the start"""
+    """Adam learning rate at the start (finite, > 0)"""
     lr_end_factor: float = 0.1
-    """final learning rate as a fraction of lr, reached linearly at the end of the run"""
+    """final learning rate as a fraction of lr (0..1), reached linearly at the end of the run"""
     gamma: float = 0.99
-    """discount factor"""
+    """discount factor, in [0, 1)"""
     epsilon_start: float = 1.0
-    """initial exploration rate"""
+    """initial exploration rate, in [0, 1]"""
     epsilon_end: float = 0.05
-    """final exploration rate"""
-    epsilon_decay: float = 0.5
-    """fraction of the run over which epsilon falls linearly from start to end"""
+    """final exploration rate, in [0, epsilon_start]"""
+    epsilon_decay: float = 0.0
+    """the course skeleton's multiplicative factor in (0, 1): after each finished episode
+    epsilon <- max(epsilon_end, epsilon * factor) (e.g. 0.995); 0 = linear schedule"""
+    epsilon_fraction: float = 0.5
+    """with --epsilon_decay 0: fraction (0, 1] of the run over which epsilon falls linearly"""
     hidden_dim: int = 64
     """units of the hidden layer"""
     target_update: int = 250
-    """gradient updates between hard copies of the online into the target networks"""
+    """gradient updates (not episodes, not env steps) between hard copies of the online
+    into the target networks"""
     buffer_size: int = 100_000
-    """replay capacity in joint transitions"""
+    """replay capacity in joint transitions (at least batch_size)"""
     learning_starts: int = 5_000
-    """environment steps collected before the first update"""
+    """env steps collected before the first update: batch_size or more, below total_steps"""
     updates_per_step: int = 2
     """gradient updates per step of the parallel environments"""
     max_grad_norm: float = 10.0
-    """gradient-norm clipping threshold"""
+    """gradient-norm clipping threshold (finite, > 0)"""
     comm_learning: str = "dial"
     """dial: train the message head through the partner's TD loss; none: leave it untrained"""
     comm_noise: float = 1.0
-    """standard deviation of the Gaussian noise on the message logit during training (DIAL)"""
+    """standard deviation (finite, >= 0) of the Gaussian noise on the message logit (DIAL)"""
     dueling: bool = False
     """use the dueling architecture Q = V + (A - mean A)"""
     prioritized: bool = False
     """use proportional prioritised replay"""
     eval_interval: int = 10_000
-    """environment steps between evaluations on the fixed evaluation episodes"""
+    """environment steps between evaluations on the fixed validation episodes"""
     eval_episodes: int = 200
-    """episodes of each periodic evaluation (fixed validation episodes)"""
+    """episodes of each periodic evaluation (validation episodes)"""
     keep_best: bool = True
     """end with the weights that scored best in the periodic evaluations, not the last ones"""
+    select_by: str = "success"
+    """what picks checkpoints and the best seed on validation episodes: success (mean of the
+    greedy and epsilon = 0.05 success rates) or return (their mean return, trained reward)"""
     final_eval_episodes: int = 1000
-    """episodes of the final evaluation that picks the best seed per mode"""
+    """validation episodes of the selection evaluation at the end of each run, which picks
+    the best seed per mode (reported success rates come from evaluate.py)"""
     save_freq: int = 0
     """environment steps between intermediate model saves (0: save at the end only)"""
-    output_dir: str = "results"
-    """folder (relative to problem2/) for agent_models/ and training_logs/"""
-    workers: int = 2
-    """parallel training processes (one per core)"""
+    output_dir: str = str(DEFAULT_OUTPUT_DIR)
+    """folder for agent_models/ and training_logs/; a relative path is relative to the
+    current folder (default: problem2/results, wherever you run from)"""
+    workers: int = field(default_factory=available_cores)
+    """parallel training processes (default: the available cores; at most one per run)"""
+    overwrite: bool = False
+    """replace a batch with other settings in --output_dir (see the rule below)"""
+
+    def __post_init__(self) -> None:
+        # --grid_size 10 and --grid_size 10 10 (the skeleton's list) mean the same grid.
+        if isinstance(self.grid_size, (list, tuple)):
+            sides = list(self.grid_size)
+            if len(sides) == 1 or (len(sides) == 2 and sides[0] == sides[1]):
+                self.grid_size = sides[0]
+            else:
+                self.grid_size = sides
+
+    def grid_shape(self) -> tuple[int, int]:
+        """(rows, cols) of the grid."""
+        if isinstance(self.grid_size, list):
+            return int(self.grid_size[0]), int(self.grid_size[1])
+        return int(self.grid_size), int(self.grid_size)
 
     def run_seeds(self) -> list[int]:
         return list(self.seeds) if self.seeds else [self.seed + i for i in range(self.num_seeds)]
@@ -99,45 +143,186 @@ class TrainConfig:
         return list(MODES) if self.mode == "all" else self.mode.split(",")
 
     def validate(self) -> TrainConfig:
-        """Raise ValueError naming the first invalid setting; return self."""
-        checks = [
-            (
-                self.mode == "all" or set(self.mode.split(",")) <= set(MODES),
-                f"mode must be all or a comma-separated list of {MODES}",
-            ),
-            (
-                self.reward_mode in ("arrival", "per_step"),
-                "reward_mode must be arrival or per_step",
-            ),
-            (self.comm_learning in ("dial", "none"), "comm_learning must be dial or none"),
-            (0.0 <= self.gamma < 1.0, "gamma must lie in [0, 1)"),
-            (
-                0.0 <= self.epsilon_end <= self.epsilon_start <= 1.0,
-                "need 0 <= epsilon_end <= epsilon_start <= 1",
-            ),
-            (0.0 < self.epsilon_decay <= 1.0, "epsilon_decay is a fraction of the run in (0, 1]"),
-            (self.total_steps > 0 or self.num_episodes > 0, "give total_steps or num_episodes"),
-            (
-                self.batch_size > 0 and self.num_envs > 0 and self.hidden_dim > 0,
-                "batch_size, num_envs and hidden_dim must be positive",
-            ),
-            (self.buffer_size >= self.batch_size, "buffer_size must be at least batch_size"),
-            (
-                self.lr > 0 and self.target_update > 0 and self.updates_per_step > 0,
-                "lr, target_update and updates_per_step must be positive",
-            ),
-        ]
-        for ok, message in checks:
-            if not ok:
-                raise ValueError(f"invalid training setting: {message}")
+        """Raise :class:`SettingError` naming the first invalid field and its allowed range;
+        return self."""
+        for name, check in FIELD_CHECKS.items():
+            problem = check(getattr(self, name))
+            if problem:
+                raise SettingError(name, problem, getattr(self, name))
+        for names, problem in cross_field_problems(self):
+            raise SettingError(names[0], problem, getattr(self, names[0]))
         return self
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    def hyperparameters(self) -> dict[str, Any]:
+        """Every field that shapes the results (not where they go or how many processes)."""
+        return {k: v for k, v in self.to_dict().items() if k not in RUN_ONLY_FIELDS}
 
+
+class SettingError(ValueError):
+    """An invalid training setting; ``name`` is the field (the flag is ``--name``)."""
+
+    def __init__(self, name: str, problem: str, value: Any) -> None:
+        super().__init__(f"{name} {problem}, got {value!r}")
+        self.name, self.problem, self.value = name, problem, value
+
+
+# ------------------------------------------------------------------------ field checks
+Check = Callable[[Any], str | None]
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _int_in(low: int, high: int | None = None) -> Check:
+    allowed = f"an integer >= {low}" if high is None else f"an integer in {low}..{high}"
+
+    def check(value: Any) -> str | None:
+        ok = _is_int(value) and value >= low and (high is None or value <= high)
+        return None if ok else f"must be {allowed}"
+
+    return check
+
+
+def _number_in(low: float, high: float, low_open: bool = False, high_open: bool = False) -> Check:
+    left, right = "(" if low_open else "[", ")" if high_open else "]"
+    shown_high = "inf)" if math.isinf(high) else f"{high:g}{right}"
+    allowed = f"a finite number in {left}{low:g}, {shown_high}"
+
+    def check(value: Any) -> str | None:
+        if not (isinstance(value, (int, float)) and not isinstance(value, bool)):
+            return f"must be {allowed}"
+        ok = (
+            math.isfinite(value)
+            and (value > low if low_open else value >= low)
+            and (value < high if high_open else value <= high)
+        )
+        return None if ok else f"must be {allowed}"
+
+    return check
+
+
+def _one_of(*choices: str) -> Check:
+    return lambda value: None if value in choices else f"must be one of {', '.join(choices)}"
+
+
+def _boolean(value: Any) -> str | None:
+    return None if isinstance(value, bool) else "must be True or False"
+
+
+def _check_mode(value: Any) -> str | None:
+    message = f"must be all or a comma-separated list of distinct modes from {', '.join(MODES)}"
+    if value == "all":
+        return None
+    if not isinstance(value, str) or not value:
+        return message
+    modes = value.split(",")
+    return None if set(modes) <= set(MODES) and len(set(modes)) == len(modes) else message
+
+
+def _check_seeds(value: Any) -> str | None:
+    ok = (
+        isinstance(value, (list, tuple))
+        and all(_is_int(s) and 0 <= s <= MAX_SEED for s in value)
+        and len(set(value)) == len(value)
+    )
+    return None if ok else f"must be distinct integers in 0..{MAX_SEED}"
+
+
+def _check_grid_size(value: Any) -> str | None:
+    sides = value if isinstance(value, list) else [value]
+    ok = len(sides) in (1, 2) and all(_is_int(s) and 3 <= s <= MAX_GRID_SIDE for s in sides)
+    return None if ok else f"must be one or two integers in 3..{MAX_GRID_SIDE}"
+
+
+def _check_epsilon_decay(value: Any) -> str | None:
+    if value == 0 and not isinstance(value, bool):
+        return None
+    if _number_in(0.0, 1.0, low_open=True, high_open=True)(value) is None:
+        return None
+    return "must be 0 (linear schedule) or a multiplicative factor in (0, 1), e.g. 0.995"
+
+
+def _check_output_dir(value: Any) -> str | None:
+    if not isinstance(value, (str, os.PathLike)) or not str(value):
+        return "must be a folder path"
+    return "must be a folder, not a file" if Path(value).is_file() else None
+
+
+FIELD_CHECKS: dict[str, Check] = {
+    "mode": _check_mode,
+    "seed": _int_in(0, MAX_SEED),
+    "num_seeds": _int_in(1),
+    "seeds": _check_seeds,
+    "map_seed": _int_in(0, MAX_SEED),
+    "grid_size": _check_grid_size,
+    "max_steps": _int_in(1),
+    "reward_mode": _one_of("arrival", "per_step"),
+    "total_steps": _int_in(1),
+    "num_episodes": _int_in(0),
+    "num_envs": _int_in(1),
+    "batch_size": _int_in(1),
+    "lr": _number_in(0.0, math.inf, low_open=True, high_open=True),
+    "lr_end_factor": _number_in(0.0, 1.0),
+    "gamma": _number_in(0.0, 1.0, high_open=True),
+    "epsilon_start": _number_in(0.0, 1.0),
+    "epsilon_end": _number_in(0.0, 1.0),
+    "epsilon_decay": _check_epsilon_decay,
+    "epsilon_fraction": _number_in(0.0, 1.0, low_open=True),
+    "hidden_dim": _int_in(1),
+    "target_update": _int_in(1),
+    "buffer_size": _int_in(1),
+    "learning_starts": _int_in(0),
+    "updates_per_step": _int_in(1),
+    "max_grad_norm": _number_in(0.0, math.inf, low_open=True, high_open=True),
+    "comm_learning": _one_of("dial", "none"),
+    "comm_noise": _number_in(0.0, math.inf, high_open=True),
+    "dueling": _boolean,
+    "prioritized": _boolean,
+    "eval_interval": _int_in(1),
+    "eval_episodes": _int_in(1),
+    "keep_best": _boolean,
+    "select_by": _one_of("success", "return"),
+    "final_eval_episodes": _int_in(1),
+    "save_freq": _int_in(0),
+    "output_dir": _check_output_dir,
+    "workers": _int_in(1),
+    "overwrite": _boolean,
+}
+
+
+def cross_field_problems(cfg: TrainConfig) -> list[tuple[tuple[str, ...], str]]:
+    """Settings that are each valid but break training together: (fields, problem)."""
+    problems = []
+    if cfg.epsilon_end > cfg.epsilon_start:
+        problems.append((("epsilon_end",), f"must not exceed epsilon_start {cfg.epsilon_start}"))
+    if cfg.buffer_size < cfg.batch_size:
+        problems.append((("buffer_size",), f"must be at least batch_size {cfg.batch_size}"))
+    if cfg.learning_starts < cfg.batch_size:
+        problems.append((("learning_starts",), f"must be at least batch_size {cfg.batch_size}"))
+    if cfg.num_episodes == 0 and cfg.learning_starts >= cfg.total_steps:
+        problems.append(
+            (
+                ("learning_starts",),
+                f"must be below total_steps {cfg.total_steps} (else nothing is learned)",
+            )
+        )
+    try:
+        generate_map(cfg.grid_shape(), cfg.map_seed)
+    except ValueError as error:
+        problems.append((("map_seed",), f"gives no usable map on this grid ({error})"))
+    return problems
+
+
+assert set(FIELD_CHECKS) == {f.name for f in dataclasses.fields(TrainConfig)}
+
+
+# ------------------------------------------------------------------------------ the CLI
 def field_docs(cls: type) -> dict[str, str]:
-    """The string literal that follows each field in the class body."""
+    """The string literal that follows each field in the class body (whitespace joined)."""
     body = ast.parse(inspect.getsource(cls)).body[0].body
     docs = {}
     for statement, following in zip(body, body[1:], strict=False):
@@ -146,15 +331,53 @@ def field_docs(cls: type) -> dict[str, str]:
             and isinstance(following, ast.Expr)
             and isinstance(following.value, ast.Constant)
         ):
-            docs[statement.target.id] = following.value.value
+            docs[statement.target.id] = " ".join(following.value.value.split())
     return docs
+
+
+class ListAction(argparse.Action):
+    """A list flag: values space- or comma-separated, each converted by ``item_type``."""
+
+    def __init__(self, *args: Any, item_type: Callable[[str], Any] = str, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.item_type = item_type
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:  # noqa: ANN001
+        items = []
+        for token in values if isinstance(values, list) else [values]:
+            for part in token.split(","):
+                if not part.strip():
+                    raise argparse.ArgumentError(self, f"empty item in {token!r}")
+                try:
+                    items.append(self.item_type(part.strip()))
+                except ValueError:
+                    name = getattr(self.item_type, "__name__", "value")
+                    raise argparse.ArgumentError(self, f"invalid {name} value: {part!r}") from None
+        setattr(namespace, self.dest, items)
+
+
+OUTPUT_RULE = """\
+Outputs (in --output_dir): agent_models/ (TorchScript pairs, manifest.json, map.json,
+hyperparameters.json) and training_logs/ (one CSV per run, <run>_selection.json, curves,
+timing.json). A relative --output_dir is relative to the current folder; the default is
+problem2/results wherever you run from.
+
+A batch is written into a hidden staging folder inside --output_dir and moved into place
+only when every run has finished, so the folder holds one whole batch or the previous one.
+Into a folder that holds a batch with other settings (or model files without a manifest)
+training refuses unless --overwrite is given; a re-run with identical settings replaces
+it. Settings other than the defaults never go into the default folder without --overwrite
+(choose another --output_dir). Interrupted with Ctrl-C, the batch leaves the evaluation
+rows it measured in <output_dir>/interrupted/training_logs/ and the results untouched.
+Stale temporary files of killed runs are removed at the next start."""
 
 
 def build_parser(cls: type = TrainConfig) -> argparse.ArgumentParser:
     """One flag per dataclass field, in both spellings, with the field's docstring as help."""
     parser = argparse.ArgumentParser(
         description="Train the two agents (Problem 2).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        epilog=OUTPUT_RULE,
+        formatter_class=_HelpFormatter,
     )
     docs = field_docs(cls)
     for spec in dataclasses.fields(cls):
@@ -166,20 +389,63 @@ def build_parser(cls: type = TrainConfig) -> argparse.ArgumentParser:
         names = [f"--{spec.name}"] + (
             [f"--{spec.name.replace('_', '-')}"] if "_" in spec.name else []
         )
-        options: dict[str, Any] = {
-            "dest": spec.name,
-            "default": default,
-            "help": docs.get(spec.name, ""),
-        }
+        options: dict[str, Any] = {"dest": spec.name, "default": default}
+        options["help"] = docs.get(spec.name, "") + (
+            "" if spec.name == "output_dir" else " (default: %(default)s)"
+        )
         if isinstance(default, bool):
             options["action"] = argparse.BooleanOptionalAction
-        elif isinstance(default, list):
-            options |= {"type": int, "nargs": "+"}
+        elif spec.name in LIST_FLAGS:
+            item_type, metavar = LIST_FLAGS[spec.name]
+            options |= {"nargs": "+", "action": ListAction, "item_type": item_type}
+            options["metavar"] = metavar
         else:
             options["type"] = type(default)
         parser.add_argument(*names, **options)
     return parser
 
 
-def parse_config(argv: list[str] | None = None) -> TrainConfig:
-    return TrainConfig(**vars(build_parser().parse_args(argv))).validate()
+class _HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Keeps the epilog's paragraphs; wraps the flags' help as usual."""
+
+
+LIST_FLAGS: dict[str, tuple[Callable[[str], Any], str]] = {
+    "mode": (str, "MODE"),
+    "seeds": (int, "SEED"),
+    "grid_size": (int, "N"),
+}
+
+
+def config_from_namespace(namespace: argparse.Namespace) -> TrainConfig:
+    values = vars(namespace).copy()
+    if isinstance(values.get("mode"), list):
+        values["mode"] = ",".join(values["mode"])
+    return TrainConfig(**values)
+
+
+def parse_config(argv: Sequence[str] | None = None) -> TrainConfig:
+    """Parse and validate; a bad value raises :class:`SettingError` (a ValueError)."""
+    return config_from_namespace(build_parser().parse_args(argv)).validate()
+
+
+def parse_config_or_exit(
+    argv: Sequence[str] | None = None,
+    extra_check: Callable[[TrainConfig], None] | None = None,
+) -> TrainConfig:
+    """Parse and validate as the CLI does: a bad value is an argparse usage error (exit 2)
+    naming the flag, the value and the allowed range. ``extra_check`` (e.g. the output
+    folder rule) may raise SettingError too."""
+    parser = build_parser()
+    try:
+        cfg = config_from_namespace(parser.parse_args(argv)).validate()
+        if extra_check is not None:
+            extra_check(cfg)
+    except SettingError as error:
+        parser.error(f"argument --{error.name}: {error.problem}, got {_shown(error.value)}")
+    return cfg
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, list):
+        return " ".join(str(v) for v in value)
+    return repr(value) if isinstance(value, str) else str(value)

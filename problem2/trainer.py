@@ -172,9 +172,13 @@ class MultiAgentTrainer:
         return min(1.0, spent)
 
     def epsilon(self) -> float:
-        """Linear from epsilon_start to epsilon_end over the first epsilon_decay of the run."""
+        """With epsilon_decay > 0 (the skeleton's factor): epsilon_start * decay^episodes,
+        floored at epsilon_end; else linear from epsilon_start to epsilon_end over the first
+        epsilon_fraction of the run."""
         cfg = self.cfg
-        fraction = min(1.0, self._progress() / cfg.epsilon_decay)
+        if cfg.epsilon_decay > 0:
+            return max(cfg.epsilon_end, cfg.epsilon_start * cfg.epsilon_decay**self.episodes)
+        fraction = min(1.0, self._progress() / cfg.epsilon_fraction)
         return cfg.epsilon_start + fraction * (cfg.epsilon_end - cfg.epsilon_start)
 
     def learning_rate(self) -> float:

@@ -168,3 +168,23 @@ def test_buffer_constructor_defaults() -> None:
         "beta_steps": 100000,
         "seed": None,
     }
+
+
+@pytest.mark.parametrize("network_class", [AgentDQN, DuelingDQN])
+@pytest.mark.parametrize("name", ["input_dim", "hidden_dim", "num_actions"])
+@pytest.mark.parametrize("value", [0, -3, 2.5, None, True])
+def test_network_sizes_must_be_positive_integers(network_class, name: str, value) -> None:
+    with pytest.raises(ValueError, match=f"{name} must be a positive integer"):
+        network_class(**{name: value})
+
+
+@pytest.mark.parametrize("network_class", [AgentDQN, DuelingDQN])
+def test_networks_take_one_observation_like_a_batch_of_one(network_class: type) -> None:
+    torch.manual_seed(0)
+    network = network_class()
+    x = torch.randn(11)
+    q_values, comm = network(x)
+    batch_q, batch_comm = network(x[None])
+    assert q_values.shape == (5,) and comm.shape == (1,)
+    torch.testing.assert_close(q_values, batch_q[0])
+    torch.testing.assert_close(comm, batch_comm[0])

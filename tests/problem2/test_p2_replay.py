@@ -1,9 +1,11 @@
-"""Replay buffers: ring storage, extras, seeded sampling, the sum-tree and PER weights."""
+"""Replay buffers: ring storage, extras, seeded sampling, the sum-tree, PER weights, and the
+refusal of malformed transitions."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 from replay_buffer import TRANSITION_FIELDS, PrioritizedReplayBuffer, ReplayBuffer, SumTree
 
 
@@ -197,3 +199,70 @@ def test_prioritized_constructor_rejects_bad_hyperparameters() -> None:
         PrioritizedReplayBuffer(beta_start=1.5)
     with pytest.raises(ValueError, match="beta_steps"):
         PrioritizedReplayBuffer(beta_steps=0)
+
+
+# ------------------------------------------------------------------- malformed input
+GOOD = dict(
+    state_A=np.zeros(11), state_B=np.zeros(11), action_A=1, action_B=4, comm_A=0.5, comm_B=1.0,
+    reward=-0.1, next_state_A=np.zeros(11), next_state_B=np.zeros(11), done=False,
+)  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("change", "problem"),
+    [
+        ({"state_B": np.zeros(10)}, "state_B must be one observation vector"),
+        ({"next_state_A": np.zeros((2, 11))}, "next_state_A must be one observation vector"),
+        ({"state_A": np.full(11, np.nan)}, "state_A must hold finite numbers"),
+        ({"reward": [1.0, 2.0]}, "reward must be one number per transition"),
+        ({"action_A": 5}, r"action_A must lie in 0\.\.4"),
+        ({"action_B": -1}, r"action_B must lie in 0\.\.4"),
+        ({"action_A": 2.5}, "action_A must be integer actions"),
+        ({"action_A": True}, "action_A must be integer actions"),
+        ({"comm_A": 1.5}, r"comm_A must be a message in \[0, 1\]"),
+        ({"comm_B": -0.2}, r"comm_B must be a message in \[0, 1\]"),
+        ({"comm_B": np.nan}, r"comm_B must be a message in \[0, 1\]"),
+        ({"reward": np.inf}, "reward must be a finite number"),
+        ({"reward": np.nan}, "reward must be a finite number"),
+        ({"done": 0.5}, "done must be boolean"),
+        ({"done": 2}, "done must be boolean"),
+        ({"comm_A": torch.tensor(0.5, requires_grad=True)}, "comm_A is a tensor that requires"),
+        ({"reward": "high"}, "reward must be a finite number"),
+    ],
+)
+@pytest.mark.parametrize("buffer_class", [ReplayBuffer, PrioritizedReplayBuffer])
+def test_malformed_transitions_are_refused_by_name(buffer_class, change, problem: str) -> None:
+    buffer = buffer_class(capacity=10)
+    with pytest.raises(ValueError, match=problem):
+        buffer.push(**(GOOD | change))
+    assert len(buffer) == 0
+    buffer.push(**GOOD)
+    with pytest.raises(ValueError, match=problem):
+        buffer.push(**(GOOD | change))
+    assert len(buffer) == 1
+
+
+def test_plain_tensors_numpy_scalars_and_zero_one_done_are_accepted() -> None:
+    buffer = ReplayBuffer(capacity=10)
+    buffer.push(**GOOD | {"comm_A": torch.tensor(0.25), "action_A": np.int64(3), "done": 1.0})
+    buffer.push(**GOOD | {"state_A": torch.zeros(11), "done": np.True_})
+    assert len(buffer) == 2 and buffer.sample(2)[9].dtype == np.float32
+
+
+@pytest.mark.parametrize("capacity", [None, "10", 2.5, 0, True])
+def test_capacity_must_be_a_positive_integer_and_is_named(capacity) -> None:
+    with pytest.raises(ValueError, match="capacity must be a positive integer"):
+        ReplayBuffer(capacity=capacity)
+
+
+def test_update_priorities_needs_integer_indices_and_one_priority_per_slot() -> None:
+    buffer = PrioritizedReplayBuffer(capacity=10)
+    buffer.push_batch(**batch_of(0, 3))
+    with pytest.raises(ValueError, match="indices must be integers"):
+        buffer.update_priorities([0.5, 1.0], [1.0, 1.0])
+    with pytest.raises(ValueError, match="indices must be integers"):
+        buffer.update_priorities([True], [1.0])
+    with pytest.raises(ValueError, match="same priority"):
+        buffer.update_priorities([1, 1], [1.0, 2.0])
+    buffer.update_priorities([1, 1, 2], [3.0, 3.0, 1.0])  # a slot drawn twice by sample()
+    assert buffer._tree.values(np.array([1]))[0] == pytest.approx(3.0**0.6)

@@ -49,7 +49,9 @@ def tiny_config(*extra: str) -> TrainConfig:
 
 def filled_trainer(mode: str, *extra: str) -> train.MultiAgentTrainer:
     """A trainer whose buffer holds some experience (no updates yet)."""
-    cfg = tiny_config("--mode", mode, "--learning_starts", "100000000", *extra)
+    cfg = tiny_config(
+        "--mode", mode, "--learning_starts", "100000000", "--total_steps", "1000000000", *extra
+    )
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
     for _ in range(20):
         trainer._collect_step(trainer.rollout)
@@ -217,7 +219,7 @@ def test_smoke_run_writes_every_output(smoke_run: Path) -> None:
         rows = experiments.read_csv(logs / f"{mode}_seed641.csv")
         assert rows[-1]["env_steps"] >= 1536
         assert {"loss", "mean_q", "eval_success_greedy", "eval_success_eps"} <= set(rows[0])
-        final = json.loads((logs / f"{mode}_seed641_final.json").read_text())
+        final = json.loads((logs / f"{mode}_seed641_selection.json").read_text())
         assert final["eps"]["episodes"] == 32
     assert json.loads((models / "hyperparameters.json").read_text())["total_steps"] == 1536
     np.testing.assert_array_equal(load_map(models / "map.json"), MultiAgentEnv(seed=641).grid)
@@ -262,7 +264,7 @@ def test_same_seed_same_logs_and_models_in_parallel_and_in_sequence(tmp_path: Pa
     for seed in (3, 4):
         for name in (
             f"training_logs/comm_seed{seed}.csv",
-            f"training_logs/comm_seed{seed}_final.json",
+            f"training_logs/comm_seed{seed}_selection.json",
         ):
             assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
         for agent in "AB":
@@ -281,7 +283,7 @@ def test_full_agents_learn_on_a_small_map() -> None:
     The run is deterministic on one machine (0.93 here at ε = 0.05, 0.80 greedy); the bar
     leaves room for another CPU's floating-point rounding to change the trajectory."""
     flags = "--mode full --grid_size 5 --map_seed 3 --total_steps 30000 --num_envs 32"
-    flags += " --learning_starts 2000 --eval_interval 5000 --epsilon_decay 0.6 --batch_size 128"
+    flags += " --learning_starts 2000 --eval_interval 5000 --epsilon_fraction 0.6 --batch_size 128"
     trainer = train.MultiAgentTrainer(
         MultiAgentEnv(grid_size=(5, 5), seed=3), parse_config(flags.split())
     )
