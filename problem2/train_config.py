@@ -43,7 +43,7 @@ class TrainConfig:
     """independent (patch only), comm (+ message), full (+ distance), all, or a list: comm full"""
     seed: int = 641
     """first training seed; runs use seed, seed + 1, ... unless --seeds is given"""
-    num_seeds: int = 5
+    num_seeds: int = 10
     """number of training seeds per mode (1 or more)"""
     seeds: list[int] = field(default_factory=list)
     """explicit training seeds, distinct, 0..2^32-1 (overrides --seed and --num_seeds)"""
