@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from analysis_runs import check_policy_outputs
 from models import MESSAGE_INDEX
 from multi_agent_env import NUM_ACTIONS, VectorMultiAgentEnv
 from rollout import EVAL_SEED, EpisodeResults, PolicyFn, run_episodes, summarize
@@ -51,16 +52,25 @@ class EvaluationSetting:
         return int(row), int(col)
 
 
-def model_policy(model_A: torch.nn.Module, model_B: torch.nn.Module) -> PolicyFn:
-    """Greedy actions and messages of two models that map raw observations [B, 11] to
-    (Q-values [B, 5], message [B, 1]); each model is called once per step on the batch."""
+def model_policy(
+    model_A: torch.nn.Module,
+    model_B: torch.nn.Module,
+    names: tuple[str, str] = ("model_A", "model_B"),
+) -> PolicyFn:
+    """Greedy actions and messages of two models that map raw observations [B, D] to
+    (Q-values [B, 5], message [B, 1]); each model is called once per step on the batch.
+    Non-finite Q-values or a message outside [0, 1] raise ValueError naming the model."""
 
     def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        outputs = []
         with torch.inference_mode():
-            q_a, message_a = model_A(torch.from_numpy(np.ascontiguousarray(obs[:, 0])))
-            q_b, message_b = model_B(torch.from_numpy(np.ascontiguousarray(obs[:, 1])))
-        actions = torch.stack((q_a.argmax(dim=1), q_b.argmax(dim=1)), dim=1).numpy()
-        return actions, torch.cat((message_a, message_b), dim=1).numpy()
+            for agent, model in enumerate((model_A, model_B)):
+                q_values, message = model(torch.from_numpy(np.ascontiguousarray(obs[:, agent])))
+                q_values, message = q_values.numpy(), message.numpy()
+                check_policy_outputs(q_values, message, names[agent])
+                outputs.append((q_values.argmax(axis=1), message[:, 0]))
+        actions = np.stack([outputs[0][0], outputs[1][0]], axis=1)
+        return actions, np.stack([outputs[0][1], outputs[1][1]], axis=1)
 
     return act
 
@@ -206,3 +216,43 @@ def episode_summary(
     if results.trajectories is not None:
         summary["failures"] = failure_shares(results, target)
     return summary
+
+
+DECOMPOSITION = {
+    "navigation": "a failed episode in which at least one agent never reached the target",
+    "timing": "a failed episode in which both agents reached the target, never on the same step",
+    "reached_and_left": "a failed episode in which an agent stepped off the target after "
+    "reaching it (overlaps the two kinds above)",
+    "stay_on_target_share": "share of the steps begun by an agent on the target on which it is "
+    "still there after the step (all episodes)",
+}
+
+
+def failure_decomposition(results: EpisodeResults, target: tuple[int, int]) -> dict:
+    """Shares of the failed episodes by ``DECOMPOSITION`` (None if none failed) and the share
+    of on-target steps on which the agent stays. Needs recorded episodes."""
+    if results.trajectories is None:
+        raise ValueError("failure_decomposition needs recorded episodes (record=True)")
+    positions = results.trajectories["positions"]  # (E, T + 1, 2, 2)
+    horizon = positions.shape[1] - 1
+    on = np.all(positions == np.asarray(target), axis=-1)  # (E, T + 1, 2)
+    failed = ~results.successes
+    reached = on.any(axis=1)  # (E, 2)
+    left = (on[:, :-1] & ~on[:, 1:]).any(axis=(1, 2))
+    taken = (np.arange(horizon)[None, :] < results.lengths[:, None])[..., None]  # (E, T, 1)
+    began_on = on[:, :-1] & taken
+    count = int(failed.sum())
+
+    def share(kind: np.ndarray) -> float | None:
+        return float((kind & failed).sum() / count) if count else None
+
+    return {
+        "failed_episodes": count,
+        "navigation": share(~reached.all(axis=1)),
+        "timing": share(reached.all(axis=1)),
+        "reached_and_left": share(left),
+        "stay_on_target_share": float((began_on & on[:, 1:]).sum() / began_on.sum())
+        if began_on.any()
+        else None,
+        "steps_begun_on_target": int(began_on.sum()),
+    }

@@ -17,8 +17,10 @@ from analysis_episodes import (
     perturb_messages,
     with_exploration,
 )
+from analysis_interventions import intervene
 from analysis_messages import mean_message_per_cell, message_correlations, message_distribution
 from analysis_plots import plot_message_heatmap, plot_trajectories
+from analysis_runs import check_policy
 from analysis_stats import paired_difference
 from analysis_traces import representative_traces
 from baselines import oracle_policy
@@ -37,7 +39,10 @@ class MultiAgentEvaluator:
         env: a ``MultiAgentEnv`` or ``VectorMultiAgentEnv``; its map, time limit, window
             and reward mode are used (the evaluator builds its own vectorised copies).
         model_A, model_B: modules mapping raw observations [B, 11] to (Q-values [B, 5],
-            message [B, 1]), e.g. from :func:`load_trained_models`.
+            message [B, 1] in [0, 1]): TorchScript files from :func:`load_trained_models`
+            (mask inside) or plain ``AgentDQN`` / ``DuelingDQN`` instances (fed the raw
+            observation, as they are). Checked on probe observations first; non-finite
+            Q-values or messages outside [0, 1] are a ValueError naming the model.
         policy_factory: instead of models, a function from a map (H, W) to a greedy
             ``rollout.PolicyFn`` (e.g. ``baselines.oracle_policy``).
         epsilon: exploration rate of the ε-greedy condition (the other is greedy).
@@ -53,14 +58,18 @@ class MultiAgentEvaluator:
         policy_factory: PolicyFactory | None = None,
         epsilon: float = EVAL_EPSILON,
         seed: int = EVAL_SEED,
+        names: tuple[str, str] = ("model_A", "model_B"),
     ) -> None:
         if policy_factory is None and (model_A is None or model_B is None):
             raise ValueError("give model_A and model_B, or a policy_factory")
+        if policy_factory is None:
+            for model, name in zip((model_A, model_B), names, strict=True):
+                check_policy(model, name, env.obs_window**2 + 2)
         self.setting = EvaluationSetting(
             np.asarray(env.grid), env.reward_mode, env.max_steps, env.obs_window
         )
         self.model_A, self.model_B = model_A, model_B
-        self.policy_factory = policy_factory or (lambda grid: model_policy(model_A, model_B))
+        self.policy_factory = policy_factory or (lambda grid: model_policy(model_A, model_B, names))
         self.epsilon, self.seed = float(epsilon), int(seed)
         self.conditions = {"greedy": 0.0, "eps": self.epsilon}
         self._episodes_run = 0
@@ -73,12 +82,17 @@ class MultiAgentEvaluator:
         message: str = "real",
         record: bool = True,
         setting: EvaluationSetting | None = None,
+        intervention: tuple[int, np.ndarray | None] | None = None,
     ) -> EpisodeResults:
         """``num_episodes`` fixed test episodes (one batch), ε-greedy with ``epsilon``,
-        the incoming message real, shuffled or zeroed; on ``setting`` (default: own map)."""
+        the incoming message real, shuffled or zeroed; on ``setting`` (default: own map).
+        ``intervention`` = (observation index, table (E, T, 2)) feeds the table's values
+        on that element (see ``analysis_interventions``)."""
         setting = setting or self.setting
         env = setting.make_env(num_episodes)
         policy = perturb_messages(self.policy_factory(setting.grid), env, message, self.seed + 1)
+        if intervention is not None:
+            policy = intervene(policy, env, intervention[1], intervention[0])
         policy = with_exploration(policy, epsilon, self.seed)
         return run_episodes(env, policy, num_episodes, self.seed, record)
 
@@ -167,13 +181,17 @@ class MultiAgentEvaluator:
             "causal": self.causal_message_test(num_episodes),
         }
 
-    def visualize_trajectory(self, save_path: str | Path, num_episodes: int = 200) -> Path:
+    def visualize_trajectory(
+        self, save_path: str | Path = "results/trajectory.png", num_episodes: int = 200
+    ) -> Path:
         """Draw a representative successful and a failed test episode (greedy if the
         greedy policy has both, otherwise taken from the ε-greedy episodes)."""
         traces = representative_traces(self.run_conditions(num_episodes), self.setting.target)
         return plot_trajectories([("evaluated policy", traces)], self.setting.grid, save_path)
 
-    def plot_communication_heatmap(self, save_path: str | Path, num_episodes: int = 500) -> Path:
+    def plot_communication_heatmap(
+        self, save_path: str | Path = "results/comm_heatmap.png", num_episodes: int = 500
+    ) -> Path:
         """Mean message sent by each agent from each cell over greedy test episodes."""
         means = mean_message_per_cell(self.run(num_episodes), self.setting.grid.shape)
         return plot_message_heatmap([("evaluated policy", means)], self.setting.grid, save_path)

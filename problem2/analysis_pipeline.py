@@ -16,16 +16,29 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 from _atomic import write_json_atomic
 from analysis_episodes import (
+    DECOMPOSITION,
     FAILURE_KINDS,
     FAILURE_WINDOW,
     LOOP_CELLS,
     PARKED_SHARE,
     SWAP_RADIUS,
     episode_summary,
+    failure_decomposition,
 )
 from analysis_evaluator import GENERALIZATION_MAP_SEEDS, MultiAgentEvaluator
+from analysis_information import MEASURES, communication_measures
+from analysis_interventions import (
+    CHANNEL_INTERVENTIONS,
+    CHANNEL_MODES,
+    INTERVENTIONS,
+    VERDICTS,
+    channel_verdict,
+    intervention_table,
+    mean_received,
+)
 from analysis_messages import (
     FEATURE_DESCRIPTIONS,
     mean_message_per_cell,
@@ -34,7 +47,13 @@ from analysis_messages import (
 )
 from analysis_plots import plot_message_heatmap, plot_trajectories, save_episode_gif
 from analysis_report import create_evaluation_report
-from analysis_runs import Experiment, best_seed, load_model_pair
+from analysis_runs import (
+    Experiment,
+    best_seed,
+    load_model_pair,
+    model_paths,
+    relative_models_dir,
+)
 from analysis_stats import BOOTSTRAP_RESAMPLES, seed_statistics
 from analysis_traces import representative_traces
 from baselines import oracle_policy, random_policy
@@ -55,9 +74,8 @@ FAILURE_DEFINITIONS = {
 }
 MESSAGE_TEST = {
     "real": "the partner's message as sent",
-    "shuffled": "at each step, the message that arrived at the same step in another running "
-    "episode (random cyclic pairing; the multiset of messages per step is kept)",
-    "zeroed": "0, as at an episode's start (out of distribution elsewhere)",
+    "shuffled": "intervention same_step: the message another episode received at the same step",
+    "zeroed": "intervention constant_0: the message 0 at every step",
 }
 
 
@@ -80,8 +98,11 @@ def _evaluator(
         max_steps=int(settings["max_steps"]),
         reward_mode=settings["reward_mode"],
     )
-    models = load_model_pair(experiment.models_dir, mode, seed) if mode else (None, None)
-    return MultiAgentEvaluator(env, *models, epsilon=epsilon, **kw)
+    if mode is None:
+        return MultiAgentEvaluator(env, epsilon=epsilon, **kw)
+    models = load_model_pair(experiment.models_dir, mode, seed)
+    names = tuple(str(path) for path in model_paths(experiment.models_dir, mode, seed))
+    return MultiAgentEvaluator(env, *models, epsilon=epsilon, names=names, **kw)
 
 
 def aggregate(summaries: list[dict]) -> dict[str, Any]:
@@ -105,7 +126,7 @@ def message_verdict(causal: dict[str, dict], epsilon: float) -> tuple[bool, str]
     parts, used = [], False
     for name in CONDITIONS:
         diff = causal[name]["real_minus_shuffled"]
-        low, high = diff["ci95"] if diff["n"] > 1 else diff["episode_ci95"]
+        low, high = diff["ci95"]
         label = "greedy" if name == "greedy" else f"ε = {epsilon}"
         span = f"real − shuffled = {diff['mean']:+.3f} (95 % CI [{low:+.3f}, {high:+.3f}])"
         if low > 0:
@@ -127,16 +148,74 @@ def message_verdict(causal: dict[str, dict], epsilon: float) -> tuple[bool, str]
     return used, f"{head} " + "; ".join(parts) + "."
 
 
-def aggregate_causal(per_seed: list[dict], epsilon: float) -> dict[str, Any]:
-    """Seed statistics of each message condition's success and of the differences."""
+def _intervention_tests(
+    evaluators: dict[int, MultiAgentEvaluator],
+    real: dict[int, dict[str, EpisodeResults]],
+    mode: str,
+    num_episodes: int,
+) -> dict[str, Any]:
+    """Success under every intervention of each channel the mode reads, per seed and
+    condition, and Δsuccess (intervention − real) with seed statistics and a verdict."""
+    tests: dict[str, Any] = {}
+    any_seed = next(iter(evaluators.values()))
+    message_index = any_seed.setting.obs_window**2
+    for channel, index in (("message", message_index), ("distance", message_index + 1)):
+        if mode not in CHANNEL_MODES[channel]:
+            continue
+        entry: dict[str, Any] = {"observation_index": index}
+        for condition in CONDITIONS:
+            runs = [real[seed][condition] for seed in evaluators]
+            constant = mean_received(runs, index)
+            per_seed: dict[str, dict[str, float]] = {}
+            for seed, evaluator in evaluators.items():
+                recorded = real[seed][condition]
+                rates = {"real": float(recorded.successes.mean())}
+                for number, kind in enumerate(CHANNEL_INTERVENTIONS[channel][1:]):
+                    table = intervention_table(kind, recorded, index, constant, seed + number)
+                    changed = evaluator.run(
+                        num_episodes, evaluator.conditions[condition], record=False,
+                        intervention=(index, table),
+                    )  # fmt: skip
+                    rates[kind] = float(changed.successes.mean())
+                per_seed[str(seed)] = rates
+            kinds = CHANNEL_INTERVENTIONS[channel]
+            success = {k: seed_statistics([r[k] for r in per_seed.values()]) for k in kinds}
+            delta = {
+                k: seed_statistics([r[k] - r["real"] for r in per_seed.values()]) for k in kinds[1:]
+            }
+            verdict = channel_verdict(delta)
+            entry[condition] = {
+                "constant_mean_value": constant,
+                "success": success,
+                "delta_success": delta,
+                "verdict": verdict,
+                "verdict_text": VERDICTS[verdict],
+            }
+        tests[channel] = entry
+    return tests
+
+
+def _legacy_causal(message_test: dict, epsilon: float) -> dict[str, Any]:
+    """The message test under its earlier names (shuffled = same_step, zeroed = constant_0),
+    read by the report."""
     causal: dict[str, Any] = {}
-    for name in CONDITIONS:
-        tests = [seed_test[name] for seed_test in per_seed]
-        causal[name] = {m: seed_statistics([t[m] for t in tests]) for m in MESSAGE_TEST}
-        for key in ("real_minus_shuffled", "real_minus_zeroed"):
-            causal[name][key] = seed_statistics([t[key]["mean"] for t in tests])
-            if len(tests) == 1:
-                causal[name][key]["episode_ci95"] = tests[0][key]["ci95"]
+    for condition in CONDITIONS:
+        success, delta = (
+            message_test[condition]["success"],
+            message_test[condition]["delta_success"],
+        )
+        causal[condition] = {
+            "real": success["real"],
+            "shuffled": success["same_step"],
+            "zeroed": success["constant_0"],
+        }
+        for old, new in (("shuffled", "same_step"), ("zeroed", "constant_0")):
+            flipped = {**delta[new]}
+            flipped["mean"] = -delta[new]["mean"]
+            flipped["ci95"] = [-delta[new]["ci95"][1], -delta[new]["ci95"][0]]
+            flipped["iqm"] = -delta[new]["iqm"]
+            flipped["per_seed"] = [None if v is None else -v for v in delta[new]["per_seed"]]
+            causal[condition][f"real_minus_{old}"] = flipped
     used, causal["verdict"] = message_verdict(causal, epsilon)
     causal["message_used"] = used
     return causal
@@ -146,23 +225,27 @@ def evaluate_mode(
     experiment: Experiment, mode: str, num_episodes: int, epsilon: float
 ) -> tuple[dict, dict, dict[str, EpisodeResults]]:
     """Performance and communication entries of one mode, and the best seed's episodes."""
-    per_seed_perf, per_seed_comm, seed_runs = {}, {}, {}
+    per_seed_perf, per_seed_comm, seed_runs, evaluators = {}, {}, {}, {}
     target = tuple(int(v) for v in np.argwhere(experiment.grid == 2)[0])
     for seed in experiment.seeds[mode]:
-        evaluator = _evaluator(experiment, epsilon, mode, seed)
-        runs = evaluator.run_conditions(num_episodes)
+        evaluator = evaluators[seed] = _evaluator(experiment, epsilon, mode, seed)
+        runs = seed_runs[seed] = evaluator.run_conditions(num_episodes)
         per_seed_perf[str(seed)] = {
             name: episode_summary(runs[name], target, evaluator.conditions[name])
+            | {"failure_decomposition": failure_decomposition(runs[name], target)}
             for name in CONDITIONS
         }
+        q_functions = tuple(
+            (lambda obs, m=m: m(torch.from_numpy(obs))[0].detach().numpy())
+            for m in (evaluator.model_A, evaluator.model_B)
+        )
         per_seed_comm[str(seed)] = {
             "messages": message_distribution(runs["greedy"]),
             "correlations": message_correlations(runs["greedy"], experiment.grid),
+            "measures": communication_measures(
+                runs["greedy"], experiment.grid, q_functions, epsilon
+            ),
         }
-        if mode != "independent":
-            causal = evaluator.causal_message_test(num_episodes, runs)
-            per_seed_comm[str(seed)]["causal"] = causal
-        seed_runs[seed] = runs
     chosen = best_seed(experiment, mode)
     if chosen is None:  # no best-pair files: take the best seed of this evaluation
         chosen = max(seed_runs, key=lambda s: per_seed_perf[str(s)]["eps"]["success_rate"])
@@ -174,10 +257,28 @@ def evaluate_mode(
         "per_seed": per_seed_perf,
     }
     communication: dict[str, Any] = {"label": experiment.label(mode), "per_seed": per_seed_comm}
-    if mode != "independent":
-        tests = [entry["causal"] for entry in per_seed_comm.values()]
-        communication["causal"] = aggregate_causal(tests, epsilon)
+    communication["measures"] = aggregate_measures([c["measures"] for c in per_seed_comm.values()])
+    tests = _intervention_tests(evaluators, seed_runs, mode, num_episodes)
+    if tests:
+        communication["interventions"] = tests
+    if "message" in tests:
+        communication["causal"] = _legacy_causal(tests["message"], epsilon)
     return performance, communication, seed_runs[chosen]
+
+
+def aggregate_measures(per_seed: list[dict]) -> dict[str, Any]:
+    """Seed statistics of every communication measure, per bin count and sender."""
+    first = per_seed[0]
+    return {
+        bins: {
+            measure: {
+                sender: seed_statistics([entry[bins][measure][sender] for entry in per_seed])
+                for sender in first[bins][measure]
+            }
+            for measure in first[bins]
+        }
+        for bins in first
+    }
 
 
 def evaluate_experiment(
@@ -196,7 +297,8 @@ def evaluate_experiment(
     info = {
         key: settings.get(key) for key in ("map_seed", "reward_mode", "comm_learning", "max_steps")
     }
-    info |= {"models_dir": str(experiment.models_dir), "grid": experiment.grid.tolist()}
+    info |= {"models_dir": relative_models_dir(experiment.name), "grid": experiment.grid.tolist()}
+    info["manifest"] = experiment.manifest is not None
     info["target"] = [int(v) for v in np.argwhere(experiment.grid == 2)[0]]
     outcome = ExperimentOutcome(
         performance={**info, "baselines": baselines, "modes": {}},
@@ -274,12 +376,15 @@ def evaluate_all(
         print(f"evaluated {experiment.name} ({time.perf_counter() - start:.0f} s)")
     results: dict[str, Any] = {
         "performance": {
-            "protocol": protocol | {"failure_definitions": FAILURE_DEFINITIONS},
+            "protocol": protocol
+            | {"failure_definitions": FAILURE_DEFINITIONS, "failure_decomposition": DECOMPOSITION},
             "experiments": {name: o.performance for name, o in outcomes.items()},
         },
         "communication": {
             "protocol": protocol
-            | {"message_conditions": MESSAGE_TEST, "features": FEATURE_DESCRIPTIONS},
+            | {"message_conditions": MESSAGE_TEST, "features": FEATURE_DESCRIPTIONS}
+            | {"interventions": INTERVENTIONS, "channel_interventions": CHANNEL_INTERVENTIONS}
+            | {"verdicts": VERDICTS, "measures": MEASURES},
             "experiments": {name: o.communication for name, o in outcomes.items()},
         },
     }

@@ -23,6 +23,8 @@ The run of ``python evaluate.py`` is in ``analysis_pipeline.py``; it writes to
 from __future__ import annotations
 
 import argparse
+import io
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -30,77 +32,119 @@ import torch
 from analysis_evaluator import MultiAgentEvaluator
 from analysis_pipeline import evaluate_all, write_outputs
 from analysis_report import create_evaluation_report, format_report
-from analysis_runs import DEFAULT_ROOT, discover_experiments, load_model_pair
+from analysis_runs import (
+    DEFAULT_ROOT,
+    MODES,
+    discover_experiments,
+    load_model_pair,
+    model_paths,
+    resolve_checkpoint,
+)
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON
 
 __all__ = ["MultiAgentEvaluator", "create_evaluation_report", "load_trained_models", "main"]
+DEFAULT_CHECKPOINT = DEFAULT_ROOT / "agent_models"
 
 
 def load_trained_models(
-    checkpoint_dir: str | Path = DEFAULT_ROOT / "agent_models",
+    checkpoint_dir: str | Path = "results/agent_models",
     mode: str = "full",
     seed: int | None = None,
 ) -> tuple[torch.jit.ScriptModule, torch.jit.ScriptModule]:
     """Load (model_A, model_B) of ``mode`` from ``checkpoint_dir``: the best pair
     ``<mode>_agent_{A,B}.pt``, or ``<mode>_seed<seed>_agent_{A,B}.pt`` if ``seed`` is given.
 
-    Raises FileNotFoundError (naming the directory or file) if one is missing and
-    ValueError (naming the file) if it is not a TorchScript policy of the right shape."""
-    return load_model_pair(Path(checkpoint_dir), mode, seed)
+    A relative ``checkpoint_dir`` is resolved against the current folder; the default
+    ``results/agent_models``, if absent there, means this package's results folder, so
+    ``load_trained_models()`` works from any folder. Raises FileNotFoundError (naming the
+    directory or file) if one is missing and ValueError (naming the file) if it is not a
+    TorchScript policy of the right shape with finite outputs."""
+    path = Path(checkpoint_dir)
+    if str(checkpoint_dir) == "results/agent_models" and not path.is_dir():
+        path = DEFAULT_CHECKPOINT
+    return load_model_pair(path, mode, seed)
+
+
+def make_console_safe() -> None:
+    """Replace characters the console cannot encode (e.g. 'ε' on cp1252) instead of failing."""
+    for stream in (sys.stdout, sys.stderr):
+        if isinstance(stream, io.TextIOWrapper):
+            stream.reconfigure(errors="replace")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+        description=__doc__.split("\n\n")[0],
+        epilog="Relative paths are resolved against the current folder.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     add = parser.add_argument
-    add("--checkpoint", "--checkpoint_dir", type=Path, default=DEFAULT_ROOT / "agent_models",
-        help="agent_models folder of the main experiment; studies are found beside it "
-             "under ../studies (default: results/agent_models)")  # fmt: skip
+    add("--checkpoint", "--checkpoint_dir", "--checkpoint-dir", type=Path,
+        default=DEFAULT_CHECKPOINT,
+        help="problem2/results/agent_models from any folder by default; "
+             "agent_models folder of the main experiment (or the run folder holding it), "
+             "relative to the current folder; studies are found beside it under ../studies. "
+             "With a manifest.json exactly its runs are evaluated and every file is checked "
+             "against it; without one, the model files found are")  # fmt: skip
     add("--num_episodes", "--num-episodes", type=int, default=1000,
-        help="test episodes per trained seed and condition (default 1000)")  # fmt: skip
+        help="test episodes per trained seed and condition")  # fmt: skip
     add("--epsilon", type=float, default=EVAL_EPSILON,
-        help="exploration rate of the ε-greedy condition (default 0.05)")  # fmt: skip
+        help="exploration rate of the ε-greedy condition")  # fmt: skip
     add("--render", action="store_true", help="first print one episode step by step")
-    add("--mode", default="full", choices=("independent", "comm", "full"),
-        help="mode whose best pair --render shows (default full)")  # fmt: skip
+    add("--mode", default="full", choices=MODES, help="mode whose best pair --render shows")
     add("--output_dir", "--output-dir", type=Path, default=None,
-        help="output folder (default: evaluation_results beside the checkpoint)")  # fmt: skip
+        help="output folder; None: evaluation_results beside the agent_models folder")  # fmt: skip
     add("--generalization_episodes", "--generalization-episodes", type=int, default=500,
-        help="test episodes per model and map, generalisation test (default 500)")  # fmt: skip
+        help="test episodes per model and map, generalisation test")  # fmt: skip
     args = parser.parse_args(argv)
-    if args.num_episodes < 1 or args.generalization_episodes < 1:
-        parser.error("episode counts must be positive")
+    for flag in ("num_episodes", "generalization_episodes"):
+        if not 1 <= getattr(args, flag) <= 5000:
+            parser.error(f"--{flag} must be an integer in 1..5000, got {getattr(args, flag)}")
     if not 0 <= args.epsilon <= 1:
         parser.error(f"--epsilon must lie in [0, 1], got {args.epsilon}")
+    try:
+        args.checkpoint, note = resolve_checkpoint(args.checkpoint)
+    except ValueError as error:
+        parser.error(str(error))
+    if note:
+        print(note)
     return args
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """Evaluate every experiment found from the checkpoint folder and write every output."""
+    """Evaluate every experiment found from the checkpoint folder and write every output.
+    A missing, damaged or unlisted model file ends the run (exit status 1) naming it,
+    before anything is written."""
+    make_console_safe()
     args = parse_args(argv)
     torch.set_num_threads(1)  # batches of ~1000 rows: one thread is fast and leaves cores free
-    checkpoint = args.checkpoint.resolve()
-    if not checkpoint.is_dir():
-        raise FileNotFoundError(f"checkpoint directory {checkpoint} does not exist")
-    experiments = discover_experiments(checkpoint)
-    if not experiments:
-        raise FileNotFoundError(
-            f"no trained models (<mode>_seed<seed>_agent_A.pt) in {checkpoint}; run train.py first"
-        )
-    if args.render:
-        main_experiment = experiments[0]
-        env = MultiAgentEnv(
-            grid=main_experiment.grid,
-            max_steps=int(main_experiment.settings["max_steps"]),
-            reward_mode=main_experiment.settings["reward_mode"],
-        )
-        models = load_trained_models(main_experiment.models_dir, args.mode)
-        print(f"one greedy episode of the best {args.mode} pair ({main_experiment.models_dir}):")
-        MultiAgentEvaluator(env, *models).run_episode(render=True)
-    results, outcomes = evaluate_all(experiments, args)
-    output_dir = args.output_dir or checkpoint.parent / "evaluation_results"
+    try:
+        experiments = discover_experiments(args.checkpoint)
+        if not experiments:
+            raise FileNotFoundError(f"no trained models in {args.checkpoint}; run train.py first")
+        for experiment in experiments:
+            if experiment.manifest is None:
+                print(f"note: no manifest.json in {experiment.models_dir}: evaluating the "
+                      "model files found there")  # fmt: skip
+            for mode, seeds in experiment.seeds.items():
+                for seed in seeds:
+                    load_model_pair(experiment.models_dir, mode, seed)
+        if args.render:
+            main_experiment = experiments[0]
+            env = MultiAgentEnv(
+                grid=main_experiment.grid,
+                max_steps=int(main_experiment.settings["max_steps"]),
+                reward_mode=main_experiment.settings["reward_mode"],
+            )
+            models = load_trained_models(main_experiment.models_dir, args.mode)
+            names = tuple(str(p) for p in model_paths(main_experiment.models_dir, args.mode))
+            print(f"one greedy episode of the best {args.mode} pair ({names[0]}, {names[1]}):")
+            MultiAgentEvaluator(env, *models, names=names).run_episode(render=True)
+        results, outcomes = evaluate_all(experiments, args)
+    except (FileNotFoundError, ValueError) as error:
+        raise SystemExit(f"evaluate.py: error: {error}") from error
+    output_dir = args.output_dir or args.checkpoint.parent / "evaluation_results"
     write_outputs(results, outcomes, output_dir)
     print(format_report(results, brief=True))
     print(f"wrote {output_dir}")
