@@ -1,6 +1,6 @@
-"""Running trained policies for Problem 2's evaluation: greedy and ε-greedy policies from
-two TorchScript models, the message perturbations of the causal test, per-episode
-summaries and the classification of failed episodes.
+"""Running trained policies for Problem 2's evaluation: greedy policies from two models,
+exploration with common random numbers, fixed start cells, per-episode summaries, the
+classification and the decomposition of failed episodes.
 
 Every policy here has the ``rollout.PolicyFn`` signature, so random, oracle and trained
 policies all run through :func:`rollout.run_episodes`.
@@ -13,12 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from analysis_runs import check_policy_outputs
-from models import MESSAGE_INDEX
 from multi_agent_env import NUM_ACTIONS, VectorMultiAgentEnv
-from rollout import EVAL_SEED, EpisodeResults, PolicyFn, run_episodes, summarize
+from rollout import EVAL_SEED, EpisodeResults, PolicyFn, summarize
 
-MAX_BATCH = 5_000  # episodes stepped together; more run in rounds
-MESSAGE_CONDITIONS = ("real", "shuffled", "zeroed")
+MAX_BATCH = 20_000  # copies stepped together (test episodes x blocks); more run in groups
 FAILURE_KINDS = ("swapping", "parked", "looping", "other")
 FAILURE_WINDOW = 10  # the last steps of a failed episode that its classification looks at
 LOOP_CELLS = 4  # at most this many distinct cells per agent in the window: looping
@@ -35,11 +33,10 @@ class EvaluationSetting:
     max_steps: int = 50
     obs_window: int = 3
 
-    def make_env(self, num_episodes: int) -> VectorMultiAgentEnv:
-        """A vectorised environment that runs ``num_episodes`` in as few rounds as allowed
-        (one round up to ``MAX_BATCH``, so every policy sees the same start cells)."""
+    def make_env(self, copies: int) -> VectorMultiAgentEnv:
+        """A vectorised environment of ``copies`` copies of this map and rules."""
         return VectorMultiAgentEnv(
-            min(num_episodes, MAX_BATCH),
+            copies,
             grid=self.grid,
             obs_window=self.obs_window,
             max_steps=self.max_steps,
@@ -75,76 +72,45 @@ def model_policy(
     return act
 
 
-def with_exploration(policy_fn: PolicyFn, epsilon: float, seed: int = EVAL_SEED) -> PolicyFn:
-    """ε-greedy around ``policy_fn``: each agent's action is replaced by a uniform random one
-    with probability ``epsilon`` (its message is kept). Seeded; it draws the same numbers
-    in the same order as the trainer's evaluation policy."""
-    if not 0 <= epsilon <= 1:
-        raise ValueError(f"epsilon must lie in [0, 1], got {epsilon}")
+def explore_by_step(
+    policy_fn: PolicyFn,
+    env: VectorMultiAgentEnv,
+    epsilons: np.ndarray,
+    episodes: int,
+    seed: int = EVAL_SEED,
+) -> PolicyFn:
+    """ε-greedy around ``policy_fn`` with one exploration rate per copy of ``env``
+    (``epsilons`` (N,)), copy c playing test episode ``c % episodes``. The uniform numbers
+    and random actions are drawn once per (episode, step, agent) from ``seed``, so every
+    copy of the same episode meets the same exploration draws at the same step (common
+    random numbers: a run and an intervention on it differ only by the intervention)."""
+    epsilons = np.asarray(epsilons, dtype=np.float64)
+    if epsilons.shape != (env.n_envs,) or not ((epsilons >= 0) & (epsilons <= 1)).all():
+        raise ValueError(f"epsilons must be {env.n_envs} numbers in [0, 1], got {epsilons}")
     rng = np.random.default_rng(seed)
+    horizon = env.max_steps
+    uniforms = rng.random((episodes, horizon, 2))
+    random_actions = rng.integers(0, NUM_ACTIONS, (episodes, horizon, 2))
+    rows = np.arange(env.n_envs) % episodes
+    threshold = epsilons[:, None]
 
     def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         actions, messages = policy_fn(obs, positions)
-        explore = rng.random(actions.shape) < epsilon
-        random_actions = rng.integers(0, NUM_ACTIONS, actions.shape)
-        return np.where(explore, random_actions, actions), messages
+        steps = np.minimum(env.steps, horizon - 1)
+        explore = uniforms[rows, steps] < threshold
+        return np.where(explore, random_actions[rows, steps], actions), messages
 
     return act
 
 
-def perturb_messages(
-    policy_fn: PolicyFn, env: VectorMultiAgentEnv, condition: str, seed: int = EVAL_SEED + 1
-) -> PolicyFn:
-    """Wrap ``policy_fn`` so that it receives a changed incoming message (element 9) and
-    nothing else changed; ``env`` must be the environment :func:`rollout.run_episodes`
-    steps, which runs all copies in step with each other.
-
-    * ``"shuffled"``: at each step, every running episode receives, per agent, the message
-      that arrived at the same step in another running episode (a random cyclic
-      permutation among them), so the messages at each step keep their multiset.
-    * ``"zeroed"``: the message is set to 0 (seen otherwise only at an episode's start).
-    * ``"real"``: ``policy_fn`` itself.
-
-    The running episodes are the copies at the round's current step: a copy that finished
-    was reset and has taken fewer steps since.
-    """
-    if condition not in MESSAGE_CONDITIONS:
-        raise ValueError(f"unknown message condition {condition!r}; use {MESSAGE_CONDITIONS}")
-    if condition == "real":
-        return policy_fn
-    rng = np.random.default_rng(seed)
-
-    def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        changed = obs.copy()
-        if condition == "zeroed":
-            changed[:, :, MESSAGE_INDEX] = 0.0
-            return policy_fn(changed, positions)
-        steps = env.steps
-        running = np.flatnonzero(steps == steps.max())
-        for agent in (0, 1):
-            order = running[rng.permutation(running.size)]
-            donors = np.roll(order, -1)  # a cycle: each episode receives another's message
-            changed[order, agent, MESSAGE_INDEX] = obs[donors, agent, MESSAGE_INDEX]
-        return policy_fn(changed, positions)
-
-    return act
-
-
-def evaluate_models(
-    setting: EvaluationSetting,
-    model_A: torch.nn.Module,
-    model_B: torch.nn.Module,
-    num_episodes: int,
-    epsilon: float = 0.0,
-    message: str = "real",
-    seed: int = EVAL_SEED,
-    record: bool = True,
-) -> EpisodeResults:
-    """Run the two models on ``num_episodes`` fixed test episodes (start cells from
-    ``seed``), with exploration ``epsilon`` and the incoming message ``message``."""
-    env = setting.make_env(num_episodes)
-    policy = perturb_messages(model_policy(model_A, model_B), env, message, seed + 1)
-    return run_episodes(env, with_exploration(policy, epsilon, seed), num_episodes, seed, record)
+def start_positions(setting: EvaluationSetting, episodes: int, seed: int) -> np.ndarray:
+    """Start cells (E, 2, 2) of the ``episodes`` test episodes drawn from ``seed`` (the cells
+    a ``run_episodes(..., seed)`` round of E copies starts from)."""
+    env = VectorMultiAgentEnv(
+        episodes, grid=setting.grid, obs_window=setting.obs_window, max_steps=setting.max_steps
+    )
+    env.reset(seed=seed)
+    return env.positions
 
 
 def classify_failures(results: EpisodeResults, target: tuple[int, int]) -> np.ndarray:

@@ -101,21 +101,33 @@ def intervention_table(
     return table
 
 
+def stack_tables(tables: list[np.ndarray | None], episodes: int, setting) -> np.ndarray:
+    """One table (K·E, T, 2) for K blocks stepped together; NaN (keep the real value) for
+    a block without a table."""
+    shape = (episodes, setting.max_steps, 2)
+    return np.concatenate(
+        [np.full(shape, np.nan, dtype=np.float32) if t is None else t for t in tables]
+    )
+
+
 def intervene(
     policy_fn: PolicyFn, env: VectorMultiAgentEnv, table: np.ndarray | None, index: int
 ) -> PolicyFn:
-    """``policy_fn`` reading ``table[e, t]`` (E, T, 2) on element ``index`` in copy e of
-    ``env`` at its step t; one copy runs one episode (the run fits in one round)."""
+    """``policy_fn`` reading ``table[c, t]`` (N, T, 2) on element ``index`` in copy c of
+    ``env`` at its step t, the real value where the table holds NaN; each copy runs one
+    episode (the run fits in one round)."""
     if table is None:
         return policy_fn
+    if len(table) != env.n_envs:
+        raise ValueError(f"intervention table for {len(table)} copies, env has {env.n_envs}")
     rows = np.arange(len(table))
     horizon = table.shape[1]
+    keep = np.isnan(table)
 
     def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        if len(obs) != len(table):
-            raise ValueError(f"intervention table for {len(table)} episodes, got {len(obs)}")
+        steps = np.minimum(env.steps, horizon - 1)
         changed = obs.copy()
-        changed[:, :, index] = table[rows, np.minimum(env.steps, horizon - 1)]
+        changed[:, :, index] = np.where(keep[rows, steps], obs[:, :, index], table[rows, steps])
         return policy_fn(changed, positions)
 
     return act

@@ -116,6 +116,10 @@ def aggregate(summaries: list[dict]) -> dict[str, Any]:
     result["failures"] = {
         kind: seed_statistics([s["failures"][kind] for s in summaries]) for kind in FAILURE_KINDS
     }
+    result["failure_decomposition"] = {
+        key: seed_statistics([s["failure_decomposition"][key] for s in summaries])
+        for key in DECOMPOSITION
+    }
     return result
 
 
@@ -154,39 +158,60 @@ def _intervention_tests(
     mode: str,
     num_episodes: int,
 ) -> dict[str, Any]:
-    """Success under every intervention of each channel the mode reads, per seed and
-    condition, and Δsuccess (intervention − real) with seed statistics and a verdict."""
+    """Success under every intervention on each channel the mode reads (one batch per
+    seed: every channel, intervention and condition together), Δsuccess (intervention −
+    real, paired by episode and exploration draws) as seed statistics, and a verdict."""
+    channels = [c for c in CHANNEL_MODES if mode in CHANNEL_MODES[c]]
+    if not channels:
+        return {}
+    message_index = next(iter(evaluators.values())).setting.obs_window ** 2
+    indices = {"message": message_index, "distance": message_index + 1}
+    constants = {
+        (channel, condition): mean_received([r[condition] for r in real.values()], indices[channel])
+        for channel in channels
+        for condition in CONDITIONS
+    }
+    blocks = [
+        (channel, condition, kind)
+        for channel in channels
+        for condition in CONDITIONS
+        for kind in CHANNEL_INTERVENTIONS[channel][1:]
+    ]
+    rates: dict[int, dict[tuple[str, str, str], float]] = {}
+    for seed, evaluator in evaluators.items():
+        tables = [
+            {
+                indices[channel]: intervention_table(
+                    kind,
+                    real[seed][condition],
+                    indices[channel],
+                    constants[channel, condition],
+                    seed * 100 + number,
+                )
+            }  # fmt: skip
+            for number, (channel, condition, kind) in enumerate(blocks)
+        ]
+        epsilons = [evaluator.conditions[condition] for _, condition, _ in blocks]
+        runs = evaluator.run_blocks(num_episodes, epsilons, tables)
+        rates[seed] = {b: float(r.successes.mean()) for b, r in zip(blocks, runs, strict=True)}
+        for channel in channels:
+            for condition in CONDITIONS:
+                rates[seed][channel, condition, "real"] = float(
+                    real[seed][condition].successes.mean()
+                )
     tests: dict[str, Any] = {}
-    any_seed = next(iter(evaluators.values()))
-    message_index = any_seed.setting.obs_window**2
-    for channel, index in (("message", message_index), ("distance", message_index + 1)):
-        if mode not in CHANNEL_MODES[channel]:
-            continue
-        entry: dict[str, Any] = {"observation_index": index}
+    for channel in channels:
+        kinds = CHANNEL_INTERVENTIONS[channel]
+        entry: dict[str, Any] = {"observation_index": indices[channel]}
         for condition in CONDITIONS:
-            runs = [real[seed][condition] for seed in evaluators]
-            constant = mean_received(runs, index)
-            per_seed: dict[str, dict[str, float]] = {}
-            for seed, evaluator in evaluators.items():
-                recorded = real[seed][condition]
-                rates = {"real": float(recorded.successes.mean())}
-                for number, kind in enumerate(CHANNEL_INTERVENTIONS[channel][1:]):
-                    table = intervention_table(kind, recorded, index, constant, seed + number)
-                    changed = evaluator.run(
-                        num_episodes, evaluator.conditions[condition], record=False,
-                        intervention=(index, table),
-                    )  # fmt: skip
-                    rates[kind] = float(changed.successes.mean())
-                per_seed[str(seed)] = rates
-            kinds = CHANNEL_INTERVENTIONS[channel]
-            success = {k: seed_statistics([r[k] for r in per_seed.values()]) for k in kinds}
+            per_seed = {s: {k: rates[s][channel, condition, k] for k in kinds} for s in rates}
             delta = {
                 k: seed_statistics([r[k] - r["real"] for r in per_seed.values()]) for k in kinds[1:]
             }
             verdict = channel_verdict(delta)
             entry[condition] = {
-                "constant_mean_value": constant,
-                "success": success,
+                "constant_mean_value": constants[channel, condition],
+                "success": {k: seed_statistics([r[k] for r in per_seed.values()]) for k in kinds},
                 "delta_success": delta,
                 "verdict": verdict,
                 "verdict_text": VERDICTS[verdict],
