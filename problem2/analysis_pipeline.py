@@ -12,12 +12,10 @@ from __future__ import annotations
 import argparse
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-from _atomic import write_json_atomic
 from analysis_episodes import (
     DECOMPOSITION,
     FAILURE_KINDS,
@@ -41,12 +39,9 @@ from analysis_interventions import (
 )
 from analysis_messages import (
     FEATURE_DESCRIPTIONS,
-    mean_message_per_cell,
     message_correlations,
     message_distribution,
 )
-from analysis_plots import plot_message_heatmap, plot_trajectories, save_episode_gif
-from analysis_report import create_evaluation_report
 from analysis_runs import (
     Experiment,
     best_seed,
@@ -55,7 +50,6 @@ from analysis_runs import (
     relative_models_dir,
 )
 from analysis_stats import BOOTSTRAP_RESAMPLES, seed_statistics
-from analysis_traces import representative_traces
 from baselines import oracle_policy, random_policy
 from grid_maps import generate_map
 from multi_agent_env import MultiAgentEnv
@@ -420,54 +414,3 @@ def evaluate_all(
         )
         print(f"evaluated generalisation ({time.perf_counter() - start:.0f} s)")
     return results, outcomes
-
-
-def failure_analysis(performance: dict) -> dict[str, Any]:
-    """The failure shares of every experiment and mode (from ``performance``)."""
-    return {
-        "definitions": FAILURE_DEFINITIONS,
-        "experiments": {
-            name: {
-                mode: {c: entry[c]["failures"] for c in CONDITIONS}
-                | {"baselines": {b: v["failures"] for b, v in experiment["baselines"].items()}}
-                for mode, entry in experiment["modes"].items()
-            }
-            for name, experiment in performance["experiments"].items()
-        },
-    }
-
-
-def write_outputs(
-    results: dict[str, Any], outcomes: dict[str, ExperimentOutcome], output_dir: Path
-) -> list[Path]:
-    """Write the JSON files, ``comparison_table.md`` and the figures of the main experiment
-    (or the first one evaluated) to ``output_dir``; return the paths written."""
-    output_dir = Path(output_dir)
-    written = [
-        write_json_atomic(output_dir / "performance.json", results["performance"]),
-        write_json_atomic(output_dir / "communication_analysis.json", results["communication"]),
-        write_json_atomic(
-            output_dir / "failure_analysis.json", failure_analysis(results["performance"])
-        ),
-    ]
-    if "generalization" in results:
-        written.append(
-            write_json_atomic(output_dir / "generalization.json", results["generalization"])
-        )
-    written.append(create_evaluation_report(results, output_dir / "comparison_table.md"))
-    name, outcome = next(iter(outcomes.items()))
-    entry = results["performance"]["experiments"][name]
-    grid, target = np.array(entry["grid"]), tuple(entry["target"])
-    rows, heat = [], []
-    for mode, runs in outcome.runs.items():
-        label = f"{mode} (seed {entry['modes'][mode]['best_seed']})"
-        traces = representative_traces(runs, target)
-        rows.append((label, traces))
-        heat.append((label, mean_message_per_cell(runs["greedy"], grid.shape)))
-        shown = traces[0] or traces[1]
-        if shown is not None:
-            title = f"{mode}: {'success' if shown.success else 'failure'}"
-            written.append(save_episode_gif(shown, grid, output_dir / f"episode_{mode}.gif", title))
-    written.append(plot_trajectories(rows, grid, output_dir / "trajectories.png"))
-    written.append(plot_message_heatmap(heat, grid, output_dir / "comm_heatmap.png"))
-    return written

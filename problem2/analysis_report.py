@@ -1,8 +1,10 @@
 """The Markdown comparison of Problem 2's evaluation (``comparison_table.md``), built from
-the results dict of ``analysis_pipeline.evaluate_all``."""
+the results dict of ``analysis_pipeline.evaluate_all``, and the course's
+``create_evaluation_report`` (any results dict as JSON)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -217,12 +219,15 @@ def format_report(results: dict[str, Any], brief: bool = False) -> str:
     return "\n".join(title + [line for section in sections for line in section])
 
 
-def create_evaluation_report(results: dict[str, Any], save_path: str | Path) -> Path:
-    """Write the Markdown comparison of ``results`` (keys ``performance`` and optionally
-    ``communication`` and ``generalization``, as ``python evaluate.py`` builds them) to
-    ``save_path`` atomically."""
-    if "performance" not in results:
-        raise ValueError("results must contain 'performance' (see analysis_pipeline.py)")
+def create_evaluation_report(
+    results: dict[str, Any], save_path: str | Path = "results/evaluation_report.json"
+) -> Path:
+    """Write ``results`` (any JSON-serialisable dict, e.g. what ``evaluate_performance`` or
+    ``python evaluate.py`` returns) to ``save_path`` as indented UTF-8 JSON, atomically;
+    the parent folder is created. NaN or Infinity is refused (ValueError): not JSON."""
+    if not isinstance(results, dict):
+        raise TypeError(f"results must be a dict, got {type(results).__name__}")
+    text = json.dumps(results, indent=2, allow_nan=False) + "\n"
     with temporary_path_for(save_path) as temporary:
-        temporary.write_text(format_report(results))
+        temporary.write_text(text, encoding="utf-8")
     return Path(save_path)

@@ -1,23 +1,25 @@
-"""Evaluate Problem 2's trained agents: honest success rates, what the message means, how
-the agents fail, other maps, and pictures.
+"""Evaluate Problem 2's trained agents: the reported success rates, what each input channel
+carries and what the agents use of it, how the agents fail, other maps, and pictures.
 
-    python evaluate.py                               # every mode and seed found, all studies
+    python evaluate.py                               # every mode and seed, all studies
     python evaluate.py --checkpoint results/agent_models --num_episodes 1000 --epsilon 0.05
+    python evaluate.py --checkpoint my_run           # a train.py --output_dir folder
     python evaluate.py --render                      # also print one episode step by step
 
-Models are loaded as TorchScript files only (``torch.jit.load``), never through the
-training code, so models exported elsewhere are evaluated the same way. Every policy runs
-on the vectorised environment, all test episodes of a model in one batch, with fixed start
-cells (seed 7 000 000, as the trainer's final evaluation), greedy (ε = 0) and ε-greedy with
-a seeded exploration stream.
+The success rates reported anywhere come from here: fixed test episodes (start cells from
+``rollout.EVAL_SEED``), greedy (ε = 0) and ε-greedy with exploration draws fixed per episode
+and step. (Training picks checkpoints on other, validation episodes: that is "selection",
+``training_logs/<run>_selection.json``, and is never reported as a result.) Models load
+with ``torch.jit.load`` only; where the folder has a batch ``manifest.json``, exactly its
+runs are evaluated and every file's sha256 is checked (else the files found are evaluated,
+with a note). A bad model (missing, damaged, unlisted, NaN Q-values, a message outside
+[0, 1]) stops the run before any output is written, naming the file (exit status 1).
 
 The course interface lives here: :func:`load_trained_models`, :class:`MultiAgentEvaluator`
 (``analysis_evaluator.py``) and :func:`create_evaluation_report` (``analysis_report.py``).
-The run of ``python evaluate.py`` is in ``analysis_pipeline.py``; it writes to
-``<checkpoint>/../evaluation_results/`` (``results/evaluation_results/`` by default):
-``performance.json``, ``comparison_table.md``, ``communication_analysis.json``,
-``failure_analysis.json``, ``generalization.json``, ``trajectories.png``,
-``comm_heatmap.png`` and ``episode_<mode>.gif``.
+The run of ``python evaluate.py``: ``analysis_pipeline.py`` evaluates (episodes through
+``rollout.run_episodes``), ``analysis_outputs.py`` writes ``evaluation_results/`` beside the
+agent_models folder (see that module for the list of files).
 """
 
 from __future__ import annotations
@@ -30,11 +32,13 @@ from typing import Any
 
 import torch
 from analysis_evaluator import MultiAgentEvaluator
-from analysis_pipeline import evaluate_all, write_outputs
+from analysis_outputs import write_outputs
+from analysis_pipeline import evaluate_all
 from analysis_report import create_evaluation_report, format_report
 from analysis_runs import (
     DEFAULT_ROOT,
     MODES,
+    best_seed,
     discover_experiments,
     load_model_pair,
     model_paths,
@@ -130,6 +134,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             for mode, seeds in experiment.seeds.items():
                 for seed in seeds:
                     load_model_pair(experiment.models_dir, mode, seed)
+                best_seed(experiment, mode)  # a damaged or foreign best pair is an error
         if args.render:
             main_experiment = experiments[0]
             env = MultiAgentEnv(
