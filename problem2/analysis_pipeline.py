@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from functools import partial
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -50,7 +51,7 @@ from analysis_runs import (
     relative_models_dir,
 )
 from analysis_stats import BOOTSTRAP_RESAMPLES, seed_statistics
-from baselines import oracle_policy, random_policy
+from baselines import POLICIES
 from grid_maps import generate_map
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, EpisodeResults, summarize
@@ -303,12 +304,10 @@ def aggregate_measures(per_seed: list[dict]) -> dict[str, Any]:
 def evaluate_experiment(
     experiment: Experiment, num_episodes: int, epsilon: float
 ) -> ExperimentOutcome:
-    """Every mode and seed of ``experiment`` beside the random and oracle policies."""
+    """Every mode and seed of ``experiment`` beside the baseline policies (greedy)."""
     baselines = {}
-    for name, factory in (
-        ("random", lambda grid: random_policy(EVAL_SEED)),
-        ("oracle", oracle_policy),
-    ):
+    for name, policy in POLICIES.items():
+        factory = partial(lambda grid, make: make(grid, EVAL_SEED), make=policy)
         evaluator = _evaluator(experiment, epsilon, policy_factory=factory)
         results = evaluator.run(num_episodes)
         baselines[name] = episode_summary(results, evaluator.setting.target, 0.0)
@@ -332,17 +331,15 @@ def evaluate_experiment(
 
 
 def evaluate_generalization(experiment: Experiment, num_episodes: int, epsilon: float) -> dict:
-    """Every model pair of ``experiment`` on map seeds 0–9, beside the oracle and the
-    random policy on each map; per map and mode, seed statistics of the success rate."""
+    """Every model pair of ``experiment`` on map seeds 0–9, beside the baseline policies on
+    each map; per map and mode, seed statistics of the success rate."""
     size = experiment.grid.shape
     maps: dict[str, dict] = {}
     for map_seed in GENERALIZATION_MAP_SEEDS:
         grid = generate_map(size, map_seed)
         entry: dict[str, Any] = {"target": [int(v) for v in np.argwhere(grid == 2)[0]]}
-        for name, factory in (
-            ("random", lambda g: random_policy(EVAL_SEED)),
-            ("oracle", oracle_policy),
-        ):
+        for name, policy in POLICIES.items():
+            factory = partial(lambda g, make: make(g, EVAL_SEED), make=policy)
             evaluator = MultiAgentEvaluator(
                 MultiAgentEnv(grid=grid, max_steps=int(experiment.settings["max_steps"])),
                 policy_factory=factory,
@@ -373,6 +370,10 @@ def evaluate_generalization(experiment: Experiment, num_episodes: int, epsilon: 
         "map_seeds": list(GENERALIZATION_MAP_SEEDS),
         "maps": maps,
         "mean_over_maps": summary,
+        "baselines_mean_over_maps": {
+            name: float(np.mean([entry[name]["success_rate"] for entry in maps.values()]))
+            for name in POLICIES
+        },
     }
 
 
