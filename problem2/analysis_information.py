@@ -86,7 +86,9 @@ def causal_influence(
     conditional = np.stack(policies, axis=1)  # (S, K, 5)
     p_m = message_probabilities[None, :, None]
     marginal = (p_m * conditional).sum(axis=1, keepdims=True)  # (S, 1, 5)
-    divergence = (conditional * np.log2(conditional / marginal)).sum(axis=2)  # (S, K)
+    present = conditional > 0  # 0 · log 0 = 0 (ε = 0 gives zero probabilities)
+    ratio = np.where(present, conditional, 1.0) / np.where(present, marginal, 1.0)
+    divergence = (conditional * np.log2(ratio)).sum(axis=2)  # (S, K)
     return float((message_probabilities[None, :] * divergence).sum(axis=1).mean())
 
 
