@@ -156,6 +156,11 @@ def channel_verdict(deltas: dict[str, dict]) -> str:
     return "none"
 
 
+def raising(deltas: dict[str, dict]) -> list[str]:
+    """The interventions whose Δsuccess CI lies entirely above 0 (they help the agents)."""
+    return [k for k, v in deltas.items() if v.get("ci95") and v["ci95"][0] > 0]
+
+
 VERDICTS = {
     "content": "success drops when the value comes from another episode at the same step: "
     "the agents use what this episode's value says",

@@ -37,6 +37,7 @@ from analysis_interventions import (
     channel_verdict,
     intervention_table,
     mean_received,
+    raising,
 )
 from analysis_messages import (
     FEATURE_DESCRIPTIONS,
@@ -204,12 +205,17 @@ def _intervention_tests(
                 k: seed_statistics([r[k] - r["real"] for r in per_seed.values()]) for k in kinds[1:]
             }
             verdict = channel_verdict(delta)
+            helps = raising(delta)
+            text = VERDICTS[verdict] + (
+                f"; success rises under {', '.join(helps)} (95 % CI above 0)" if helps else ""
+            )
             entry[condition] = {
                 "constant_mean_value": constants[channel, condition],
+                "raising_interventions": helps,
                 "success": {k: seed_statistics([r[k] for r in per_seed.values()]) for k in kinds},
                 "delta_success": delta,
                 "verdict": verdict,
-                "verdict_text": VERDICTS[verdict],
+                "verdict_text": text,
             }
         tests[channel] = entry
     return tests
