@@ -22,6 +22,8 @@ Kinds (``INTERVENTIONS``), each with its question:
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from multi_agent_env import VectorMultiAgentEnv
 from rollout import EpisodeResults, PolicyFn
@@ -170,3 +172,58 @@ VERDICTS = {
     "not its content",
     "none": "no intervention lowers success (95 % CI over seeds): no evidence the channel is used",
 }
+
+
+def message_verdict(causal: dict[str, dict], epsilon: float) -> tuple[bool, str]:
+    """(used, plain-language verdict) from the real − shuffled success difference and its
+    95 % bootstrap CI over seeds (with one seed, the episode-level CI). The message counts
+    as used when the CI of the ε-greedy condition lies above 0."""
+    parts, used = [], False
+    for name in ("greedy", "eps"):
+        diff = causal[name]["real_minus_shuffled"]
+        low, high = diff["ci95"]
+        label = "greedy" if name == "greedy" else f"ε = {epsilon}"
+        span = f"real − shuffled = {diff['mean']:+.3f} (95 % CI [{low:+.3f}, {high:+.3f}])"
+        if low > 0:
+            parts.append(f"{label}: {span}, above 0: the partner relies on its content")
+            used = used or name == "eps"
+        elif high < 0:
+            parts.append(
+                f"{label}: {span}, below 0: a message from another episode does better than "
+                "the real one (a random input can break a greedy policy's loops)"
+            )
+        else:
+            parts.append(f"{label}: {span} includes 0")
+    head = (
+        "The message carries information the partner uses."
+        if used
+        else "No evidence that the message carries anything the partner uses: replacing it "
+        "by a message from another episode does not lower success."
+    )
+    return used, f"{head} " + "; ".join(parts) + "."
+
+
+def legacy_message_test(message_test: dict, epsilon: float) -> dict[str, Any]:
+    """The message test under its earlier names (shuffled = same_step, zeroed = constant_0),
+    read by the report."""
+    causal: dict[str, Any] = {}
+    for condition in ("greedy", "eps"):
+        success, delta = (
+            message_test[condition]["success"],
+            message_test[condition]["delta_success"],
+        )
+        causal[condition] = {
+            "real": success["real"],
+            "shuffled": success["same_step"],
+            "zeroed": success["constant_0"],
+        }
+        for old, new in (("shuffled", "same_step"), ("zeroed", "constant_0")):
+            flipped = {**delta[new]}
+            flipped["mean"] = -delta[new]["mean"]
+            flipped["ci95"] = [-delta[new]["ci95"][1], -delta[new]["ci95"][0]]
+            flipped["iqm"] = -delta[new]["iqm"]
+            flipped["per_seed"] = [None if v is None else -v for v in delta[new]["per_seed"]]
+            causal[condition][f"real_minus_{old}"] = flipped
+    used, causal["verdict"] = message_verdict(causal, epsilon)
+    causal["message_used"] = used
+    return causal

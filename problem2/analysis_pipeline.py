@@ -17,17 +17,14 @@ from typing import Any
 
 import numpy as np
 import torch
-from analysis_episodes import (
+from analysis_episodes import episode_summary
+from analysis_evaluator import GENERALIZATION_MAP_SEEDS, MultiAgentEvaluator
+from analysis_failures import (
     DECOMPOSITION,
+    FAILURE_DEFINITIONS,
     FAILURE_KINDS,
-    FAILURE_WINDOW,
-    LOOP_CELLS,
-    PARKED_SHARE,
-    SWAP_RADIUS,
-    episode_summary,
     failure_decomposition,
 )
-from analysis_evaluator import GENERALIZATION_MAP_SEEDS, MultiAgentEvaluator
 from analysis_information import MEASURES, communication_measures
 from analysis_interventions import (
     CHANNEL_INTERVENTIONS,
@@ -36,6 +33,7 @@ from analysis_interventions import (
     VERDICTS,
     channel_verdict,
     intervention_table,
+    legacy_message_test,
     mean_received,
     raising,
 )
@@ -58,16 +56,6 @@ from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, EpisodeResults, summarize
 
 CONDITIONS = ("greedy", "eps")
-FAILURE_DEFINITIONS = {
-    "window": f"the last {FAILURE_WINDOW} steps of a failed (timed-out) episode",
-    "swapping": f"at least 2 steps of the window in which the agents exchange cells, both "
-    f"cells within Manhattan distance {SWAP_RADIUS} of the target",
-    "parked": f"one agent on the target at the end and at >= {PARKED_SHARE:.0%} of the "
-    "window's positions, the other never on it in the episode",
-    "looping": f"each agent visits at most {LOOP_CELLS} distinct cells in the window "
-    "(moving among a few cells or standing still)",
-    "other": "none of the above; kinds are checked in the order listed",
-}
 MESSAGE_TEST = {
     "real": "the partner's message as sent",
     "shuffled": "intervention same_step: the message another episode received at the same step",
@@ -117,35 +105,6 @@ def aggregate(summaries: list[dict]) -> dict[str, Any]:
         for key in DECOMPOSITION
     }
     return result
-
-
-def message_verdict(causal: dict[str, dict], epsilon: float) -> tuple[bool, str]:
-    """(used, plain-language verdict) from the real − shuffled success difference and its
-    95 % bootstrap CI over seeds (with one seed, the episode-level CI). The message counts
-    as used when the CI of the ε-greedy condition lies above 0."""
-    parts, used = [], False
-    for name in CONDITIONS:
-        diff = causal[name]["real_minus_shuffled"]
-        low, high = diff["ci95"]
-        label = "greedy" if name == "greedy" else f"ε = {epsilon}"
-        span = f"real − shuffled = {diff['mean']:+.3f} (95 % CI [{low:+.3f}, {high:+.3f}])"
-        if low > 0:
-            parts.append(f"{label}: {span}, above 0: the partner relies on its content")
-            used = used or name == "eps"
-        elif high < 0:
-            parts.append(
-                f"{label}: {span}, below 0: a message from another episode does better than "
-                "the real one (a random input can break a greedy policy's loops)"
-            )
-        else:
-            parts.append(f"{label}: {span} includes 0")
-    head = (
-        "The message carries information the partner uses."
-        if used
-        else "No evidence that the message carries anything the partner uses: replacing it "
-        "by a message from another episode does not lower success."
-    )
-    return used, f"{head} " + "; ".join(parts) + "."
 
 
 def _intervention_tests(
@@ -221,32 +180,6 @@ def _intervention_tests(
     return tests
 
 
-def _legacy_causal(message_test: dict, epsilon: float) -> dict[str, Any]:
-    """The message test under its earlier names (shuffled = same_step, zeroed = constant_0),
-    read by the report."""
-    causal: dict[str, Any] = {}
-    for condition in CONDITIONS:
-        success, delta = (
-            message_test[condition]["success"],
-            message_test[condition]["delta_success"],
-        )
-        causal[condition] = {
-            "real": success["real"],
-            "shuffled": success["same_step"],
-            "zeroed": success["constant_0"],
-        }
-        for old, new in (("shuffled", "same_step"), ("zeroed", "constant_0")):
-            flipped = {**delta[new]}
-            flipped["mean"] = -delta[new]["mean"]
-            flipped["ci95"] = [-delta[new]["ci95"][1], -delta[new]["ci95"][0]]
-            flipped["iqm"] = -delta[new]["iqm"]
-            flipped["per_seed"] = [None if v is None else -v for v in delta[new]["per_seed"]]
-            causal[condition][f"real_minus_{old}"] = flipped
-    used, causal["verdict"] = message_verdict(causal, epsilon)
-    causal["message_used"] = used
-    return causal
-
-
 def evaluate_mode(
     experiment: Experiment, mode: str, num_episodes: int, epsilon: float
 ) -> tuple[dict, dict, dict[str, EpisodeResults]]:
@@ -288,7 +221,7 @@ def evaluate_mode(
     if tests:
         communication["interventions"] = tests
     if "message" in tests:
-        communication["causal"] = _legacy_causal(tests["message"], epsilon)
+        communication["causal"] = legacy_message_test(tests["message"], epsilon)
     return performance, communication, seed_runs[chosen]
 
 

@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 import pytest
-from analysis_episodes import FAILURE_KINDS, classify_failures, failure_decomposition
+from analysis_failures import FAILURE_KINDS, classify_failures, failure_decomposition
 from analysis_information import causal_influence, mutual_information
 from analysis_interventions import (
     INTERVENTIONS,
