@@ -316,6 +316,32 @@ def evaluate_generalization(experiment: Experiment, num_episodes: int, epsilon: 
     }
 
 
+HELD_OUT_MAP_SEEDS = tuple(range(1000, 1040))  # maps no model or setting was chosen on
+
+
+def evaluate_held_out_baselines(size: tuple[int, int], max_steps: int, num_episodes: int) -> dict:
+    """Every baseline policy (greedy) on ``HELD_OUT_MAP_SEEDS``: success per map and its
+    mean over maps with a 95 % bootstrap CI over maps. What needs no learning, off the
+    training map."""
+    per_map: dict[str, list[float]] = {name: [] for name in POLICIES}
+    for map_seed in HELD_OUT_MAP_SEEDS:
+        env = MultiAgentEnv(grid=generate_map(size, map_seed), max_steps=max_steps)
+        for name, policy in POLICIES.items():
+            factory = partial(
+                lambda g, make, seed: make(g, seed), make=policy, seed=EVAL_SEED + map_seed
+            )
+            results = MultiAgentEvaluator(env, policy_factory=factory).run(
+                num_episodes, record=False
+            )
+            per_map[name].append(float(results.successes.mean()))
+    return {
+        "map_seeds": list(HELD_OUT_MAP_SEEDS),
+        "episodes_per_map": num_episodes,
+        "success_rate": {name: seed_statistics(rates) for name, rates in per_map.items()},
+        "note": "ci95 and per_seed are over maps here",
+    }
+
+
 def evaluate_all(
     experiments: list[Experiment], args: argparse.Namespace
 ) -> tuple[dict[str, Any], dict[str, ExperimentOutcome]]:
@@ -351,6 +377,9 @@ def evaluate_all(
     if main is not None:
         results["generalization"] = evaluate_generalization(
             main, args.generalization_episodes, args.epsilon
+        )
+        results["generalization"]["held_out"] = evaluate_held_out_baselines(
+            main.grid.shape, int(main.settings["max_steps"]), args.generalization_episodes
         )
         print(f"evaluated generalisation ({time.perf_counter() - start:.0f} s)")
     return results, outcomes
