@@ -88,7 +88,7 @@ def causal_influence(
     marginal = (p_m * conditional).sum(axis=1, keepdims=True)  # (S, 1, 5)
     present = conditional > 0  # 0 · log 0 = 0 (ε = 0 gives zero probabilities)
     ratio = np.where(present, conditional, 1.0) / np.where(present, marginal, 1.0)
-    divergence = (conditional * np.log2(ratio)).sum(axis=2)  # (S, K)
+    divergence = np.maximum((conditional * np.log2(ratio)).sum(axis=2), 0.0)  # (S, K), ≥ 0
     return float((message_probabilities[None, :] * divergence).sum(axis=1).mean())
 
 

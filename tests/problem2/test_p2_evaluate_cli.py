@@ -20,6 +20,7 @@ from analysis_episodes import model_policy
 from analysis_information import MEASURES
 from analysis_interventions import INTERVENTIONS
 from analysis_runs import best_seed, discover_experiments, sha256_of
+from baselines import POLICIES
 from evaluate import (
     MultiAgentEvaluator,
     create_evaluation_report,
@@ -114,6 +115,9 @@ def test_communication_analysis_has_causal_test_and_verdict(evaluated: tuple[dic
     generalization = json.loads((output / "generalization.json").read_text())
     assert list(generalization["maps"]) == [str(k) for k in range(10)]
     assert all(entry["oracle"]["success_rate"] == 1.0 for entry in generalization["maps"].values())
+    held_out = generalization["held_out"]
+    assert len(held_out["map_seeds"]) == 40 and set(held_out["success_rate"]) == set(POLICIES)
+    assert held_out["success_rate"]["oracle"]["mean"] == 1.0
 
 
 def test_interventions_measures_and_decomposition_are_written(
