@@ -87,14 +87,15 @@ def explore_by_step(
     horizon = env.max_steps
     uniforms = rng.random((episodes, horizon, 2))
     random_actions = rng.integers(0, NUM_ACTIONS, (episodes, horizon, 2))
-    rows = np.arange(env.n_envs) % episodes
+    row_starts = (np.arange(env.n_envs) % episodes) * horizon  # row e·T + t: episode e, step t
     threshold = epsilons[:, None]
+    uniforms, random_actions = uniforms.reshape(-1, 2), random_actions.reshape(-1, 2)
 
     def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         actions, messages = policy_fn(obs, positions)
-        steps = np.minimum(env.steps, horizon - 1)
-        explore = uniforms[rows, steps] < threshold
-        return np.where(explore, random_actions[rows, steps], actions), messages
+        rows = row_starts + np.minimum(env.steps, horizon - 1)
+        explore = np.take(uniforms, rows, axis=0) < threshold
+        return np.where(explore, np.take(random_actions, rows, axis=0), actions), messages
 
     return act
 

@@ -122,14 +122,16 @@ def intervene(
         return policy_fn
     if len(table) != env.n_envs:
         raise ValueError(f"intervention table for {len(table)} copies, env has {env.n_envs}")
-    rows = np.arange(len(table))
     horizon = table.shape[1]
-    keep = np.isnan(table)
+    flat_table = table.reshape(-1, 2)  # row c·T + t: copy c at step t
+    flat_keep = np.isnan(flat_table)
+    row_starts = np.arange(len(table)) * horizon
 
     def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        steps = np.minimum(env.steps, horizon - 1)
+        rows = row_starts + np.minimum(env.steps, horizon - 1)
         changed = obs.copy()
-        changed[:, :, index] = np.where(keep[rows, steps], obs[:, :, index], table[rows, steps])
+        values = np.take(flat_table, rows, axis=0)
+        changed[:, :, index] = np.where(np.take(flat_keep, rows, axis=0), obs[:, :, index], values)
         return policy_fn(changed, positions)
 
     return act
