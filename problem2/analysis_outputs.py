@@ -3,7 +3,8 @@ and the figures, all into one output folder (``results/evaluation_results/`` by 
 
 Files: ``performance.json``, ``communication_analysis.json``, ``failure_analysis.json``,
 ``generalization.json``, ``interventions.json`` / ``.csv`` / ``.png``,
-``communication_measures.json`` / ``.csv``, ``failure_decomposition.json`` / ``.csv``,
+``communication_measures.json`` / ``.csv`` / ``.png``, ``failure_decomposition.csv`` /
+``.png`` (its numbers are in ``performance.json`` and ``failure_analysis.json``),
 ``comparison_table.md``, ``trajectories.png``, ``comm_heatmap.png``, ``episode_<mode>.gif``.
 JSON is written as UTF-8 without NaN or Infinity (a non-finite number is an error).
 """
@@ -20,7 +21,9 @@ import numpy as np
 from _atomic import temporary_path_for
 from analysis_messages import mean_message_per_cell
 from analysis_plots import (
+    plot_failure_decomposition,
     plot_interventions,
+    plot_measures,
     plot_message_heatmap,
     plot_trajectories,
     save_episode_gif,
@@ -197,6 +200,11 @@ def write_outputs(results: dict[str, Any], outcomes: dict, output_dir: Path) -> 
             written.append(save_episode_gif(shown, grid, output_dir / f"episode_{mode}.gif", title))
     written.append(plot_trajectories(rows, grid, output_dir / "trajectories.png"))
     written.append(plot_message_heatmap(heat, grid, output_dir / "comm_heatmap.png"))
+    main_measures = {m: v["aggregate"] for m, v in measures["experiments"][name].items()}
+    written.append(plot_measures(main_measures, "K2", output_dir / "communication_measures.png"))
+    written.append(
+        plot_failure_decomposition(entry["modes"], output_dir / "failure_decomposition.png")
+    )
     if interventions["experiments"].get(name):
         written.append(
             plot_interventions(interventions["experiments"][name], output_dir / "interventions.png")

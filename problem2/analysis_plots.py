@@ -156,6 +156,63 @@ def plot_interventions(modes: dict[str, dict], path: str | Path) -> Path:
         return save_figure(fig, path, dpi=200)
 
 
+def plot_measures(modes: dict[str, dict], bins: str, path: str | Path) -> Path:
+    """Each communication measure (``modes``: mode -> {"K2": {measure: {sender: seed
+    statistics}}}) per mode, senders A and B, mean with its 95 % CI over seeds."""
+    measures = list(next(iter(modes.values()))[bins])
+    with legible():
+        fig = Figure(figsize=(PRINT_WIDTH, 1.5 * len(measures) + 1.0), layout="constrained")
+        axes = fig.subplots(len(measures), 1, squeeze=False)[:, 0]
+        rows = np.arange(len(modes))
+        for ax, measure in zip(axes, measures, strict=True):
+            for offset, sender in zip((-0.2, 0.2), "AB", strict=True):
+                stats = [modes[mode][bins][measure][sender] for mode in modes]
+                means = np.array([s["mean"] for s in stats])
+                errors = np.array(
+                    [
+                        [m - s["ci95"][0], s["ci95"][1] - m]
+                        for m, s in zip(means, stats, strict=True)
+                    ]
+                ).T
+                colour = AGENT_COLOURS["AB".index(sender)]
+                ax.barh(rows + offset, means, height=0.38, xerr=np.maximum(errors, 0),
+                        capsize=2, color=colour, label=f"sender {sender}")  # fmt: skip
+            ax.set_yticks(rows, list(modes))
+            ax.invert_yaxis()
+            ax.set_title(measure.replace("_", " "))
+        axes[-1].set_xlabel(f"bits (message in {bins[1:]} bins; 95 % CI over seeds)")
+        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=2)
+        fig.suptitle("Communication measures (Lowe et al. 2019), greedy test episodes")
+        return save_figure(fig, path, dpi=200)
+
+
+def plot_failure_decomposition(modes: dict[str, dict], path: str | Path) -> Path:
+    """Share of test episodes that fail by navigation (an agent never reached the target)
+    and by timing (both did, never together), per mode and condition (``modes``: mode ->
+    the performance entry)."""
+    labels, navigation, timing = [], [], []
+    for mode, entry in modes.items():
+        for condition in ("greedy", "eps"):
+            failed = 1 - entry[condition]["success_rate"]["mean"]
+            shares = entry[condition]["failure_decomposition"]
+            labels.append(f"{mode}, {'greedy' if condition == 'greedy' else 'ε-greedy'}")
+            navigation.append(failed * (shares["navigation"]["mean"] or 0.0))
+            timing.append(failed * (shares["timing"]["mean"] or 0.0))
+    with legible():
+        fig = Figure(figsize=(PRINT_WIDTH, 0.45 * len(labels) + 1.6), layout="constrained")
+        ax = fig.subplots()
+        rows = np.arange(len(labels))
+        ax.barh(rows, navigation, color="#8172b3", label="navigation: an agent never reached it")
+        ax.barh(rows, timing, left=navigation, color="#ccb974",
+                label="timing: both reached it, never together")  # fmt: skip
+        ax.set_yticks(rows, labels)
+        ax.invert_yaxis()
+        ax.set_xlabel("share of test episodes that fail (mean over seeds)")
+        fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=1)
+        fig.suptitle("Why episodes fail")
+        return save_figure(fig, path, dpi=200)
+
+
 def _viridis_with_grey():
     from matplotlib import colormaps
 

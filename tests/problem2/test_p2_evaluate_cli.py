@@ -50,6 +50,8 @@ OUTPUTS = [
     "communication_measures.json",
     "communication_measures.csv",
     "failure_decomposition.csv",
+    "failure_decomposition.png",
+    "communication_measures.png",
     "failure_analysis.json",
     "generalization.json",
     "trajectories.png",
