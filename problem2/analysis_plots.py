@@ -193,11 +193,12 @@ def plot_failure_decomposition(modes: dict[str, dict], path: str | Path) -> Path
     labels, navigation, timing = [], [], []
     for mode, entry in modes.items():
         for condition in ("greedy", "eps"):
-            failed = 1 - entry[condition]["success_rate"]["mean"]
+            failed = 1 - np.array(entry[condition]["success_rate"]["per_seed"])
             shares = entry[condition]["failure_decomposition"]
             labels.append(f"{mode}, {'greedy' if condition == 'greedy' else 'ε-greedy'}")
-            navigation.append(failed * (shares["navigation"]["mean"] or 0.0))
-            timing.append(failed * (shares["timing"]["mean"] or 0.0))
+            for kind, bars in (("navigation", navigation), ("timing", timing)):
+                per_seed = [0.0 if v is None else v for v in shares[kind]["per_seed"]]
+                bars.append(float(np.mean(failed * np.array(per_seed))))  # share of all episodes
     with legible():
         fig = Figure(figsize=(PRINT_WIDTH, 0.45 * len(labels) + 1.6), layout="constrained")
         ax = fig.subplots()
