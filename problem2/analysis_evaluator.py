@@ -183,31 +183,55 @@ class MultiAgentEvaluator:
         return {**{k: v for k, v in report["greedy"].items() if k != "failures"}, **report}
 
     def intervention_test(
-        self, num_episodes: int = 1000, recorded: dict[str, EpisodeResults] | None = None
-    ) -> dict[str, dict]:
-        """Success under every intervention on the message and the distance (see
-        ``analysis_interventions``), per condition, beside the real input; the constant of
-        ``constant_mean`` is this pair's own mean received value."""
+        self,
+        num_episodes: int = 1000,
+        recorded: dict[str, EpisodeResults] | None = None,
+        channels: tuple[str, ...] = ("message", "distance"),
+        constants: dict[tuple[str, str], float] | None = None,
+        seed: int = 0,
+    ) -> dict[str, dict[str, dict[str, float]]]:
+        """Success rate under every intervention on each of ``channels`` (see
+        ``analysis_interventions``) beside the real input: ``{channel: {condition: {kind:
+        rate}}}``. One batch: every channel, condition and intervention stepped together on
+        the same test episodes and exploration draws as ``recorded`` (the real greedy and
+        ε-greedy runs; run here if not given). ``constants[(channel, condition)]`` is the
+        value of ``constant_mean`` (default: this pair's own mean received value)."""
         recorded = recorded or self.run_conditions(num_episodes)
-        index = self.setting.obs_window**2
-        result: dict[str, dict] = {}
-        for channel, element in (("message", index), ("distance", index + 1)):
-            kinds = CHANNEL_INTERVENTIONS[channel]
-            entry: dict[str, dict] = {}
-            for name, eps in self.conditions.items():
-                real = recorded[name]
-                constant = mean_received([real], element)
-                tables = [
-                    {element: intervention_table(kind, real, element, constant, number)}
-                    for number, kind in enumerate(kinds[1:])
-                ]
-                runs = self.run_blocks(num_episodes, [eps] * len(tables), tables)
-                rates = {"real": float(real.successes.mean())}
-                rates |= {
-                    k: float(r.successes.mean()) for k, r in zip(kinds[1:], runs, strict=True)
-                }
-                entry[name] = rates
-            result[channel] = entry
+        first = self.setting.obs_window**2
+        indices = {"message": first, "distance": first + 1}
+        constants = constants or {
+            (channel, name): mean_received([recorded[name]], indices[channel])
+            for channel in channels
+            for name in self.conditions
+        }
+        blocks = [
+            (channel, name, kind)
+            for channel in channels
+            for name in self.conditions
+            for kind in CHANNEL_INTERVENTIONS[channel][1:]
+        ]
+        tables = [
+            {
+                indices[channel]: intervention_table(
+                    kind,
+                    recorded[name],
+                    indices[channel],
+                    constants[channel, name],
+                    seed * 100 + number,
+                )
+            }  # fmt: skip
+            for number, (channel, name, kind) in enumerate(blocks)
+        ]
+        epsilons = [self.conditions[name] for _, name, _ in blocks]
+        runs = self.run_blocks(num_episodes, epsilons, tables)
+        result = {
+            channel: {
+                name: {"real": float(recorded[name].successes.mean())} for name in self.conditions
+            }
+            for channel in channels
+        }
+        for (channel, name, kind), run in zip(blocks, runs, strict=True):
+            result[channel][name][kind] = float(run.successes.mean())
         return result
 
     def analyze_communication(

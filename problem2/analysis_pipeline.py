@@ -32,7 +32,6 @@ from analysis_interventions import (
     INTERVENTIONS,
     VERDICTS,
     channel_verdict,
-    intervention_table,
     legacy_message_test,
     mean_received,
     raising,
@@ -114,9 +113,10 @@ def _intervention_tests(
     num_episodes: int,
 ) -> dict[str, Any]:
     """Success under every intervention on each channel the mode reads (one batch per
-    seed: every channel, intervention and condition together), Δsuccess (intervention −
-    real, paired by episode and exploration draws) as seed statistics, and a verdict."""
-    channels = [c for c in CHANNEL_MODES if mode in CHANNEL_MODES[c]]
+    seed, :meth:`MultiAgentEvaluator.intervention_test`; ``constant_mean`` is the mode's
+    mean received value over its seeds), Δsuccess (intervention − real, paired by episode
+    and exploration draws) as seed statistics, and a verdict."""
+    channels = tuple(c for c in CHANNEL_MODES if mode in CHANNEL_MODES[c])
     if not channels:
         return {}
     message_index = next(iter(evaluators.values())).setting.obs_window ** 2
@@ -126,40 +126,16 @@ def _intervention_tests(
         for channel in channels
         for condition in CONDITIONS
     }
-    blocks = [
-        (channel, condition, kind)
-        for channel in channels
-        for condition in CONDITIONS
-        for kind in CHANNEL_INTERVENTIONS[channel][1:]
-    ]
-    rates: dict[int, dict[tuple[str, str, str], float]] = {}
-    for seed, evaluator in evaluators.items():
-        tables = [
-            {
-                indices[channel]: intervention_table(
-                    kind,
-                    real[seed][condition],
-                    indices[channel],
-                    constants[channel, condition],
-                    seed * 100 + number,
-                )
-            }  # fmt: skip
-            for number, (channel, condition, kind) in enumerate(blocks)
-        ]
-        epsilons = [evaluator.conditions[condition] for _, condition, _ in blocks]
-        runs = evaluator.run_blocks(num_episodes, epsilons, tables)
-        rates[seed] = {b: float(r.successes.mean()) for b, r in zip(blocks, runs, strict=True)}
-        for channel in channels:
-            for condition in CONDITIONS:
-                rates[seed][channel, condition, "real"] = float(
-                    real[seed][condition].successes.mean()
-                )
+    rates = {
+        seed: evaluator.intervention_test(num_episodes, real[seed], channels, constants, seed)
+        for seed, evaluator in evaluators.items()
+    }
     tests: dict[str, Any] = {}
     for channel in channels:
         kinds = CHANNEL_INTERVENTIONS[channel]
         entry: dict[str, Any] = {"observation_index": indices[channel]}
         for condition in CONDITIONS:
-            per_seed = {s: {k: rates[s][channel, condition, k] for k in kinds} for s in rates}
+            per_seed = {s: rates[s][channel][condition] for s in rates}
             delta = {
                 k: seed_statistics([r[k] - r["real"] for r in per_seed.values()]) for k in kinds[1:]
             }
