@@ -44,11 +44,12 @@ def write_json(path: str | Path, data: Any) -> Path:
 
 
 def write_csv(path: str | Path, header: list[str], rows: list[list]) -> Path:
-    """Write a CSV table (UTF-8, ``\\n`` line ends) atomically."""
+    """Write a CSV table (UTF-8, ``\\n`` line ends, floats to 6 decimals; the JSON files
+    hold them unrounded) atomically."""
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(header)
-    writer.writerows(rows)
+    writer.writerows([[round(v, 6) if isinstance(v, float) else v for v in row] for row in rows])
     with temporary_path_for(path) as temporary:
         temporary.write_text(buffer.getvalue(), encoding="utf-8")
     return Path(path)
