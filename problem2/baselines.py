@@ -183,12 +183,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--episodes", type=int, default=1000, help="test episodes per map")
     parser.add_argument("--seed", type=int, default=EVAL_SEED, help="seed of the start cells")
     parser.add_argument("--map_seeds", "--map-seeds", type=int_list, nargs="+",
-                        default=[list(MAP_SEEDS)],
+                        default=",".join(map(str, MAP_SEEDS)),
                         help="map seeds, as 641,0,1 or 641 0 1")  # fmt: skip
     parser.add_argument("--output", type=Path, default=RESULTS_DIR / "baselines.json",
                         help="JSON file written")  # fmt: skip
     args = parser.parse_args(argv)
-    map_seeds = tuple(seed for part in args.map_seeds for seed in part)
+    parts = args.map_seeds  # a list of lists from the command line, one list by default
+    map_seeds = tuple(s for part in parts for s in (part if isinstance(part, list) else [part]))
     if not 1 <= args.episodes <= 100_000:
         parser.error(f"--episodes must be an integer in 1..100000, got {args.episodes}")
     if not map_seeds or min(map_seeds) < 0 or len(set(map_seeds)) != len(map_seeds):

@@ -86,11 +86,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     add = parser.add_argument
     add("--checkpoint", "--checkpoint_dir", "--checkpoint-dir", type=Path,
         default=DEFAULT_CHECKPOINT,
-        help="problem2/results/agent_models from any folder by default; "
-             "agent_models folder of the main experiment (or the run folder holding it), "
-             "relative to the current folder; studies are found beside it under ../studies. "
-             "With a manifest.json exactly its runs are evaluated and every file is checked "
-             "against it; without one, the model files found are")  # fmt: skip
+        help="agent_models folder of the main experiment, or the run folder holding it "
+             "(relative to the current folder; the default is this package's "
+             "results/agent_models, from any folder). Studies are found beside it under "
+             "../studies. With a manifest.json exactly its runs are evaluated, every file "
+             "checked against it; without one, the model files found are")  # fmt: skip
     add("--num_episodes", "--num-episodes", type=int, default=1000,
         help="test episodes per trained seed and condition")  # fmt: skip
     add("--epsilon", type=float, default=EVAL_EPSILON,
