@@ -1,6 +1,6 @@
-"""Running trained policies for Problem 2's evaluation: greedy and ε-greedy policies from
-two TorchScript models, the message perturbations of the causal test, per-episode
-summaries and the classification of failed episodes.
+"""Running trained policies for Problem 2's evaluation: greedy policies from two models,
+exploration with common random numbers, fixed start cells, per-episode summaries, the
+classification and the decomposition of failed episodes.
 
 Every policy here has the ``rollout.PolicyFn`` signature, so random, oracle and trained
 policies all run through :func:`rollout.run_episodes`.
@@ -12,17 +12,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from models import MESSAGE_INDEX
+from analysis_failures import failure_shares
+from analysis_runs import check_policy_outputs
 from multi_agent_env import NUM_ACTIONS, VectorMultiAgentEnv
-from rollout import EVAL_SEED, EpisodeResults, PolicyFn, run_episodes, summarize
+from rollout import EVAL_SEED, EpisodeResults, PolicyFn, summarize
 
-MAX_BATCH = 5_000  # episodes stepped together; more run in rounds
-MESSAGE_CONDITIONS = ("real", "shuffled", "zeroed")
-FAILURE_KINDS = ("swapping", "parked", "looping", "other")
-FAILURE_WINDOW = 10  # the last steps of a failed episode that its classification looks at
-LOOP_CELLS = 4  # at most this many distinct cells per agent in the window: looping
-PARKED_SHARE = 0.5  # on the target at least this share of the window: parked
-SWAP_RADIUS = 2  # Manhattan distance from the target within which a swap counts
+MAX_BATCH = 20_000  # copies stepped together (test episodes x blocks); more run in groups
 
 
 @dataclass(frozen=True)
@@ -34,11 +29,10 @@ class EvaluationSetting:
     max_steps: int = 50
     obs_window: int = 3
 
-    def make_env(self, num_episodes: int) -> VectorMultiAgentEnv:
-        """A vectorised environment that runs ``num_episodes`` in as few rounds as allowed
-        (one round up to ``MAX_BATCH``, so every policy sees the same start cells)."""
+    def make_env(self, copies: int) -> VectorMultiAgentEnv:
+        """A vectorised environment of ``copies`` copies of this map and rules."""
         return VectorMultiAgentEnv(
-            min(num_episodes, MAX_BATCH),
+            copies,
             grid=self.grid,
             obs_window=self.obs_window,
             max_steps=self.max_steps,
@@ -51,148 +45,69 @@ class EvaluationSetting:
         return int(row), int(col)
 
 
-def model_policy(model_A: torch.nn.Module, model_B: torch.nn.Module) -> PolicyFn:
-    """Greedy actions and messages of two models that map raw observations [B, 11] to
-    (Q-values [B, 5], message [B, 1]); each model is called once per step on the batch."""
+def model_policy(
+    model_A: torch.nn.Module,
+    model_B: torch.nn.Module,
+    names: tuple[str, str] = ("model_A", "model_B"),
+) -> PolicyFn:
+    """Greedy actions and messages of two models that map raw observations [B, D] to
+    (Q-values [B, 5], message [B, 1]); each model is called once per step on the batch.
+    Non-finite Q-values or a message outside [0, 1] raise ValueError naming the model."""
 
     def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        outputs = []
         with torch.inference_mode():
-            q_a, message_a = model_A(torch.from_numpy(np.ascontiguousarray(obs[:, 0])))
-            q_b, message_b = model_B(torch.from_numpy(np.ascontiguousarray(obs[:, 1])))
-        actions = torch.stack((q_a.argmax(dim=1), q_b.argmax(dim=1)), dim=1).numpy()
-        return actions, torch.cat((message_a, message_b), dim=1).numpy()
+            for agent, model in enumerate((model_A, model_B)):
+                q_values, message = model(torch.from_numpy(np.ascontiguousarray(obs[:, agent])))
+                q_values, message = q_values.numpy(), message.numpy()
+                check_policy_outputs(q_values, message, names[agent])
+                outputs.append((q_values.argmax(axis=1), message[:, 0]))
+        actions = np.stack([outputs[0][0], outputs[1][0]], axis=1)
+        return actions, np.stack([outputs[0][1], outputs[1][1]], axis=1)
 
     return act
 
 
-def with_exploration(policy_fn: PolicyFn, epsilon: float, seed: int = EVAL_SEED) -> PolicyFn:
-    """ε-greedy around ``policy_fn``: each agent's action is replaced by a uniform random one
-    with probability ``epsilon`` (its message is kept). Seeded; it draws the same numbers
-    in the same order as the trainer's evaluation policy."""
-    if not 0 <= epsilon <= 1:
-        raise ValueError(f"epsilon must lie in [0, 1], got {epsilon}")
+def explore_by_step(
+    policy_fn: PolicyFn,
+    env: VectorMultiAgentEnv,
+    epsilons: np.ndarray,
+    episodes: int,
+    seed: int = EVAL_SEED,
+) -> PolicyFn:
+    """ε-greedy around ``policy_fn`` with one exploration rate per copy of ``env``
+    (``epsilons`` (N,)), copy c playing test episode ``c % episodes``. The uniform numbers
+    and random actions are drawn once per (episode, step, agent) from ``seed``, so every
+    copy of the same episode meets the same exploration draws at the same step (common
+    random numbers: a run and an intervention on it differ only by the intervention)."""
+    epsilons = np.asarray(epsilons, dtype=np.float64)
+    if epsilons.shape != (env.n_envs,) or not ((epsilons >= 0) & (epsilons <= 1)).all():
+        raise ValueError(f"epsilons must be {env.n_envs} numbers in [0, 1], got {epsilons}")
     rng = np.random.default_rng(seed)
+    horizon = env.max_steps
+    uniforms = rng.random((episodes, horizon, 2))
+    random_actions = rng.integers(0, NUM_ACTIONS, (episodes, horizon, 2))
+    row_starts = (np.arange(env.n_envs) % episodes) * horizon  # row e·T + t: episode e, step t
+    threshold = epsilons[:, None]
+    uniforms, random_actions = uniforms.reshape(-1, 2), random_actions.reshape(-1, 2)
 
     def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         actions, messages = policy_fn(obs, positions)
-        explore = rng.random(actions.shape) < epsilon
-        random_actions = rng.integers(0, NUM_ACTIONS, actions.shape)
-        return np.where(explore, random_actions, actions), messages
+        rows = row_starts + np.minimum(env.steps, horizon - 1)
+        explore = np.take(uniforms, rows, axis=0) < threshold
+        return np.where(explore, np.take(random_actions, rows, axis=0), actions), messages
 
     return act
 
 
-def perturb_messages(
-    policy_fn: PolicyFn, env: VectorMultiAgentEnv, condition: str, seed: int = EVAL_SEED + 1
-) -> PolicyFn:
-    """Wrap ``policy_fn`` so that it receives a changed incoming message (element 9) and
-    nothing else changed; ``env`` must be the environment :func:`rollout.run_episodes`
-    steps, which runs all copies in step with each other.
-
-    * ``"shuffled"``: at each step, every running episode receives, per agent, the message
-      that arrived at the same step in another running episode (a random cyclic
-      permutation among them), so the messages at each step keep their multiset.
-    * ``"zeroed"``: the message is set to 0 (seen otherwise only at an episode's start).
-    * ``"real"``: ``policy_fn`` itself.
-
-    The running episodes are the copies at the round's current step: a copy that finished
-    was reset and has taken fewer steps since.
-    """
-    if condition not in MESSAGE_CONDITIONS:
-        raise ValueError(f"unknown message condition {condition!r}; use {MESSAGE_CONDITIONS}")
-    if condition == "real":
-        return policy_fn
-    rng = np.random.default_rng(seed)
-
-    def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        changed = obs.copy()
-        if condition == "zeroed":
-            changed[:, :, MESSAGE_INDEX] = 0.0
-            return policy_fn(changed, positions)
-        steps = env.steps
-        running = np.flatnonzero(steps == steps.max())
-        for agent in (0, 1):
-            order = running[rng.permutation(running.size)]
-            donors = np.roll(order, -1)  # a cycle: each episode receives another's message
-            changed[order, agent, MESSAGE_INDEX] = obs[donors, agent, MESSAGE_INDEX]
-        return policy_fn(changed, positions)
-
-    return act
-
-
-def evaluate_models(
-    setting: EvaluationSetting,
-    model_A: torch.nn.Module,
-    model_B: torch.nn.Module,
-    num_episodes: int,
-    epsilon: float = 0.0,
-    message: str = "real",
-    seed: int = EVAL_SEED,
-    record: bool = True,
-) -> EpisodeResults:
-    """Run the two models on ``num_episodes`` fixed test episodes (start cells from
-    ``seed``), with exploration ``epsilon`` and the incoming message ``message``."""
-    env = setting.make_env(num_episodes)
-    policy = perturb_messages(model_policy(model_A, model_B), env, message, seed + 1)
-    return run_episodes(env, with_exploration(policy, epsilon, seed), num_episodes, seed, record)
-
-
-def classify_failures(results: EpisodeResults, target: tuple[int, int]) -> np.ndarray:
-    """Failure kind of each episode (E,) as an index into ``FAILURE_KINDS``; −1 on success.
-
-    A failed episode ran the full ``T`` steps; its window, the last ``FAILURE_WINDOW`` steps
-    (W, so W + 1 positions), is examined and the first matching kind, in this order, is its
-    kind (the thresholds leave room for the odd random move of an ε-greedy policy):
-
-    * ``swapping``: at least two of the W steps are swaps — each agent moves into the cell
-      the other just left — between cells within Manhattan distance ``SWAP_RADIUS`` of the
-      target (the two agents keep trading places next to it);
-    * ``parked``: one agent is on the target at the last position and at least a share
-      ``PARKED_SHARE`` of the window's positions, and the other never stood on it in the
-      whole episode;
-    * ``looping``: each agent visits at most ``LOOP_CELLS`` distinct cells in the window
-      (both keep moving among a few cells, or stand still);
-    * ``other``: none of these (e.g. still wandering when time ran out).
-
-    Needs ``results`` recorded (``record=True``).
-    """
-    if results.trajectories is None:
-        raise ValueError("classify_failures needs recorded episodes (record=True)")
-    positions = results.trajectories["positions"]  # (E, T + 1, 2, 2)
-    window = positions[:, -(FAILURE_WINDOW + 1) :]  # (E, W + 1, 2, 2)
-    target = np.asarray(target)
-    before, after = window[:, :-1], window[:, 1:]
-    swaps = (
-        np.all(after[:, :, 0] == before[:, :, 1], axis=-1)
-        & np.all(after[:, :, 1] == before[:, :, 0], axis=-1)
-        & np.any(before[:, :, 0] != before[:, :, 1], axis=-1)
-        & np.all(np.abs(before - target).sum(axis=-1) <= SWAP_RADIUS, axis=-1)
-    )  # (E, W)
-    on_target = np.all(window == target, axis=-1)  # (E, W + 1, 2)
-    ever_on_target = np.all(positions == target, axis=-1).any(axis=1)  # (E, 2)
-    stays = on_target[:, -1] & (on_target.mean(axis=1) >= PARKED_SHARE)  # (E, 2)
-    parked = (stays & ~ever_on_target[:, ::-1]).any(axis=1)
-    cells = window[..., 0] * (positions[..., 1].max() + 1) + window[..., 1]  # (E, W + 1, 2)
-    ordered = np.sort(cells, axis=1)
-    distinct = 1 + (np.diff(ordered, axis=1) != 0).sum(axis=1)  # (E, 2)
-    looping = np.all(distinct <= LOOP_CELLS, axis=1)
-    kinds = np.select(
-        [swaps.sum(axis=1) >= 2, parked, looping], [0, 1, 2], default=FAILURE_KINDS.index("other")
+def start_positions(setting: EvaluationSetting, episodes: int, seed: int) -> np.ndarray:
+    """Start cells (E, 2, 2) of the ``episodes`` test episodes drawn from ``seed`` (the cells
+    a ``run_episodes(..., seed)`` round of E copies starts from)."""
+    env = VectorMultiAgentEnv(
+        episodes, grid=setting.grid, obs_window=setting.obs_window, max_steps=setting.max_steps
     )
-    return np.where(results.successes, -1, kinds)
-
-
-def failure_shares(
-    results: EpisodeResults, target: tuple[int, int]
-) -> dict[str, float | int | None]:
-    """Number of failed episodes and the share of each kind among them (None if none
-    failed)."""
-    kinds = classify_failures(results, target)
-    failed = kinds[kinds >= 0]
-    shares: dict[str, float | int | None] = {"failed_episodes": int(failed.size)}
-    for index, kind in enumerate(FAILURE_KINDS):
-        shares[kind] = float(np.mean(failed == index)) if failed.size else None
-    return shares
+    env.reset(seed=seed)
+    return env.positions
 
 
 def episode_summary(

@@ -10,21 +10,36 @@ from typing import Any
 import numpy as np
 import torch
 from analysis_episodes import (
-    MESSAGE_CONDITIONS,
+    MAX_BATCH,
     EvaluationSetting,
     episode_summary,
+    explore_by_step,
     model_policy,
-    perturb_messages,
-    with_exploration,
+    start_positions,
+)
+from analysis_interventions import (
+    CHANNEL_INTERVENTIONS,
+    intervene,
+    intervention_table,
+    mean_received,
+    stack_tables,
 )
 from analysis_messages import mean_message_per_cell, message_correlations, message_distribution
 from analysis_plots import plot_message_heatmap, plot_trajectories
-from analysis_stats import paired_difference
+from analysis_runs import check_policy
 from analysis_traces import representative_traces
 from baselines import oracle_policy
-from grid_maps import ACTION_NAMES, generate_map
+from grid_maps import ACTION_NAMES, OBSTACLE, TARGET, generate_map
 from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
-from rollout import EVAL_EPSILON, EVAL_SEED, EpisodeResults, PolicyFn, run_episodes, summarize
+from rollout import (
+    EVAL_EPSILON,
+    EVAL_SEED,
+    EpisodeResults,
+    PolicyFn,
+    run_episodes,
+    split_blocks,
+    summarize,
+)
 
 GENERALIZATION_MAP_SEEDS = tuple(range(10))
 PolicyFactory = Callable[[np.ndarray], PolicyFn]  # map (H, W) -> greedy policy on that map
@@ -37,7 +52,10 @@ class MultiAgentEvaluator:
         env: a ``MultiAgentEnv`` or ``VectorMultiAgentEnv``; its map, time limit, window
             and reward mode are used (the evaluator builds its own vectorised copies).
         model_A, model_B: modules mapping raw observations [B, 11] to (Q-values [B, 5],
-            message [B, 1]), e.g. from :func:`load_trained_models`.
+            message [B, 1] in [0, 1]): TorchScript files from :func:`load_trained_models`
+            (mask inside) or plain ``AgentDQN`` / ``DuelingDQN`` instances (fed the raw
+            observation, as they are). Checked on probe observations first; non-finite
+            Q-values or messages outside [0, 1] are a ValueError naming the model.
         policy_factory: instead of models, a function from a map (H, W) to a greedy
             ``rollout.PolicyFn`` (e.g. ``baselines.oracle_policy``).
         epsilon: exploration rate of the ε-greedy condition (the other is greedy).
@@ -53,75 +71,104 @@ class MultiAgentEvaluator:
         policy_factory: PolicyFactory | None = None,
         epsilon: float = EVAL_EPSILON,
         seed: int = EVAL_SEED,
+        names: tuple[str, str] = ("model_A", "model_B"),
     ) -> None:
         if policy_factory is None and (model_A is None or model_B is None):
             raise ValueError("give model_A and model_B, or a policy_factory")
+        if policy_factory is None:
+            for model, name in zip((model_A, model_B), names, strict=True):
+                check_policy(model, name, env.obs_window**2 + 2)
         self.setting = EvaluationSetting(
             np.asarray(env.grid), env.reward_mode, env.max_steps, env.obs_window
         )
         self.model_A, self.model_B = model_A, model_B
-        self.policy_factory = policy_factory or (lambda grid: model_policy(model_A, model_B))
+        self.policy_factory = policy_factory or (lambda grid: model_policy(model_A, model_B, names))
         self.epsilon, self.seed = float(epsilon), int(seed)
         self.conditions = {"greedy": 0.0, "eps": self.epsilon}
         self._episodes_run = 0
 
     # --------------------------------------------------------------------- running
+    def run_blocks(
+        self,
+        num_episodes: int,
+        epsilons: list[float],
+        interventions: list[dict[int, np.ndarray | None]] | None = None,
+        record: bool = False,
+        setting: EvaluationSetting | None = None,
+    ) -> list[EpisodeResults]:
+        """The same ``num_episodes`` test episodes (start cells from ``self.seed``) once per
+        block, all blocks stepped together: block k explores with ``epsilons[k]`` and, if
+        given, feeds ``interventions[k]`` ({observation index: table (E, T, 2)}, see
+        ``analysis_interventions``). Exploration uses common random numbers: two blocks
+        differ only by their exploration rate and intervention."""
+        setting = setting or self.setting
+        blocks = len(epsilons)
+        interventions = interventions or [{} for _ in range(blocks)]
+        starts = start_positions(setting, num_episodes, self.seed)
+        per_group = max(1, MAX_BATCH // num_episodes)
+        results: list[EpisodeResults] = []
+        for first in range(0, blocks, per_group):
+            group = range(first, min(first + per_group, blocks))
+            env = setting.make_env(num_episodes * len(group))
+            policy = self.policy_factory(setting.grid)
+            for index in sorted({i for k in group for i in interventions[k]}):
+                tables = [interventions[k].get(index) for k in group]
+                policy = intervene(policy, env, stack_tables(tables, num_episodes, setting), index)
+            rates = np.repeat([epsilons[k] for k in group], num_episodes)
+            policy = explore_by_step(policy, env, rates, num_episodes, self.seed)
+            both = np.tile(starts, (len(group), 1, 1))
+            run = run_episodes(env, policy, len(both), record=record, start_positions=both)
+            results += split_blocks(run, len(group))
+        return results
+
     def run(
         self,
         num_episodes: int,
         epsilon: float = 0.0,
-        message: str = "real",
         record: bool = True,
         setting: EvaluationSetting | None = None,
+        intervention: dict[int, np.ndarray | None] | None = None,
     ) -> EpisodeResults:
-        """``num_episodes`` fixed test episodes (one batch), ε-greedy with ``epsilon``,
-        the incoming message real, shuffled or zeroed; on ``setting`` (default: own map)."""
-        setting = setting or self.setting
-        env = setting.make_env(num_episodes)
-        policy = perturb_messages(self.policy_factory(setting.grid), env, message, self.seed + 1)
-        policy = with_exploration(policy, epsilon, self.seed)
-        return run_episodes(env, policy, num_episodes, self.seed, record)
+        """``num_episodes`` fixed test episodes, ε-greedy with ``epsilon``, on ``setting``
+        (default: own map), with an optional intervention ({index: table (E, T, 2)})."""
+        return self.run_blocks(num_episodes, [epsilon], [intervention or {}], record, setting)[0]
 
     def run_conditions(self, num_episodes: int) -> dict[str, EpisodeResults]:
         """Recorded episodes of the greedy and the ε-greedy condition."""
-        return {name: self.run(num_episodes, eps) for name, eps in self.conditions.items()}
+        runs = self.run_blocks(num_episodes, list(self.conditions.values()), record=True)
+        return dict(zip(self.conditions, runs, strict=True))
 
     def run_episode(
         self, render: bool = False, epsilon: float = 0.0
     ) -> tuple[float, bool, dict[str, Any]]:
         """One episode (a new start on each call, reproducibly); ``render`` prints every
         step. Returns (return, success, info with steps, positions, actions, messages)."""
-        env = VectorMultiAgentEnv(
-            1,
-            grid=self.setting.grid,
-            obs_window=self.setting.obs_window,
-            max_steps=self.setting.max_steps,
-            reward_mode=self.setting.reward_mode,
-            auto_reset=False,
+        env = self.setting.make_env(1)
+        policy = explore_by_step(
+            self.policy_factory(self.setting.grid), env, np.array([epsilon]), 1, self.seed
         )
-        policy = with_exploration(self.policy_factory(self.setting.grid), epsilon, self.seed)
-        obs = env.reset(seed=self.seed + 10_000 + self._episodes_run)
+        seed = self.seed + 10_000 + self._episodes_run
         self._episodes_run += 1
-        info: dict[str, Any] = {"positions": [env.positions[0].tolist()], "actions": []}
-        info["messages"], total, done, terminated = [], 0.0, False, False
+        run = run_episodes(env, policy, 1, seed=seed, record=True)
+        steps, trajectories = int(run.lengths[0]), run.trajectories
+        positions = trajectories["positions"][0, : steps + 1]
+        actions, messages = trajectories["actions"][0, :steps], trajectories["messages"][0, :steps]
+        info: dict[str, Any] = {
+            "steps": steps,
+            "positions": positions.tolist(),
+            "actions": [[ACTION_NAMES[a] for a in pair] for pair in actions],
+            "messages": messages.astype(float).tolist(),
+        }
+        success = bool(run.successes[0])
         if render:
-            env.render()
-        while not done:
-            actions, messages = policy(obs, env.positions)
-            obs, reward, terminated_, truncated, _ = env.step(actions, messages)
-            total += float(reward[0])
-            terminated, done = bool(terminated_[0]), bool(terminated_[0] or truncated[0])
-            info["positions"].append(env.positions[0].tolist())
-            info["actions"].append([ACTION_NAMES[a] for a in actions[0]])
-            info["messages"].append([float(m) for m in messages[0]])
-            if render:
-                print(f"actions A {info['actions'][-1][0]}, B {info['actions'][-1][1]}; "
-                      f"reward {float(reward[0]):+.1f}")  # fmt: skip
-                env.render()
-        info["steps"] = len(info["actions"])
-        if render:
-            print("success: both agents on the target" if terminated else "failure: time ran out")
-        return total, terminated, info
+            grid, limit = self.setting.grid, self.setting.max_steps
+            print(render_state(grid, positions[0], 0, limit, (0.0, 0.0)))
+            for t in range(steps):
+                print(f"actions A {info['actions'][t][0]}, B {info['actions'][t][1]}; "
+                      f"reward {float(trajectories['rewards'][0, t]):+.1f}")  # fmt: skip
+                print(render_state(grid, positions[t + 1], t + 1, limit, messages[t]))
+            print("success: both agents on the target" if success else "failure: time ran out")
+        return float(run.returns[0]), success, info
 
     # ------------------------------------------------------------------ analyses
     def evaluate_performance(self, num_episodes: int = 100) -> dict[str, Any]:
@@ -135,45 +182,82 @@ class MultiAgentEvaluator:
         }
         return {**{k: v for k, v in report["greedy"].items() if k != "failures"}, **report}
 
-    def causal_message_test(
-        self, num_episodes: int, real: dict[str, EpisodeResults] | None = None
-    ) -> dict[str, dict]:
-        """Success with the real, the shuffled and the zeroed incoming message, per
-        condition, with the paired (same start cells) differences and their episode-level
-        bootstrap CIs. ``real`` reuses already run real-message episodes."""
-        real = real or self.run_conditions(num_episodes)
-        test: dict[str, dict] = {}
-        for name, eps in self.conditions.items():
-            successes = {"real": real[name].successes}
-            for message in MESSAGE_CONDITIONS[1:]:
-                successes[message] = self.run(num_episodes, eps, message, record=False).successes
-            test[name] = {m: float(s.mean()) for m, s in successes.items()}
-            for message in MESSAGE_CONDITIONS[1:]:
-                test[name][f"real_minus_{message}"] = paired_difference(
-                    successes["real"], successes[message]
+    def intervention_test(
+        self,
+        num_episodes: int = 1000,
+        recorded: dict[str, EpisodeResults] | None = None,
+        channels: tuple[str, ...] = ("message", "distance"),
+        constants: dict[tuple[str, str], float] | None = None,
+        seed: int = 0,
+    ) -> dict[str, dict[str, dict[str, float]]]:
+        """Success rate under every intervention on each of ``channels`` (see
+        ``analysis_interventions``) beside the real input: ``{channel: {condition: {kind:
+        rate}}}``. One batch: every channel, condition and intervention stepped together on
+        the same test episodes and exploration draws as ``recorded`` (the real greedy and
+        ε-greedy runs; run here if not given). ``constants[(channel, condition)]`` is the
+        value of ``constant_mean`` (default: this pair's own mean received value)."""
+        recorded = recorded or self.run_conditions(num_episodes)
+        first = self.setting.obs_window**2
+        indices = {"message": first, "distance": first + 1}
+        constants = constants or {
+            (channel, name): mean_received([recorded[name]], indices[channel])
+            for channel in channels
+            for name in self.conditions
+        }
+        blocks = [
+            (channel, name, kind)
+            for channel in channels
+            for name in self.conditions
+            for kind in CHANNEL_INTERVENTIONS[channel][1:]
+        ]
+        tables = [
+            {
+                indices[channel]: intervention_table(
+                    kind,
+                    recorded[name],
+                    indices[channel],
+                    constants[channel, name],
+                    seed * 100 + number,
                 )
-        return test
+            }  # fmt: skip
+            for number, (channel, name, kind) in enumerate(blocks)
+        ]
+        epsilons = [self.conditions[name] for _, name, _ in blocks]
+        runs = self.run_blocks(num_episodes, epsilons, tables)
+        result = {
+            channel: {
+                name: {"real": float(recorded[name].successes.mean())} for name in self.conditions
+            }
+            for channel in channels
+        }
+        for (channel, name, kind), run in zip(blocks, runs, strict=True):
+            result[channel][name][kind] = float(run.successes.mean())
+        return result
 
     def analyze_communication(
         self, num_episodes: int = 20, recorded: EpisodeResults | None = None
     ) -> dict[str, Any]:
         """Message distribution per agent, its correlations with what the sender sees (on
-        greedy episodes), and the causal test (:meth:`causal_message_test`)."""
+        greedy episodes), and the interventions (:meth:`intervention_test`)."""
         recorded = recorded or self.run(num_episodes)
         return {
             "episodes": num_episodes,
             "messages": message_distribution(recorded),
             "correlations": message_correlations(recorded, self.setting.grid),
-            "causal": self.causal_message_test(num_episodes),
+            "interventions": self.intervention_test(num_episodes),
         }
 
-    def visualize_trajectory(self, save_path: str | Path, num_episodes: int = 200) -> Path:
+    def visualize_trajectory(
+        self, save_path: str | Path = "results/trajectory.png", num_episodes: int = 200
+    ) -> Path:
         """Draw a representative successful and a failed test episode (greedy if the
         greedy policy has both, otherwise taken from the ε-greedy episodes)."""
         traces = representative_traces(self.run_conditions(num_episodes), self.setting.target)
         return plot_trajectories([("evaluated policy", traces)], self.setting.grid, save_path)
 
-    def plot_communication_heatmap(self, save_path: str | Path, num_episodes: int = 500) -> Path:
+    def plot_communication_heatmap(
+        self, save_path: str | Path = "results/comm_heatmap.png", num_episodes: int = 500
+    ) -> Path:
         """Mean message sent by each agent from each cell over greedy test episodes."""
         means = mean_message_per_cell(self.run(num_episodes), self.setting.grid.shape)
         return plot_message_heatmap([("evaluated policy", means)], self.setting.grid, save_path)
@@ -189,14 +273,14 @@ class MultiAgentEvaluator:
             grid = generate_map(self.setting.grid.shape, map_seed)
             setting = EvaluationSetting(grid, *self._rules())
             entry: dict[str, Any] = {"target": list(setting.target)}
-            for name, eps in self.conditions.items():
-                results = self.run(num_episodes, eps, record=False, setting=setting)
+            runs = self.run_blocks(num_episodes, list(self.conditions.values()), setting=setting)
+            for name, results in zip(self.conditions, runs, strict=True):
                 entry[name] = float(results.successes.mean())
             if oracle:
-                env = setting.make_env(num_episodes)
                 entry["oracle"] = summarize(
-                    run_episodes(env, oracle_policy(grid), num_episodes, self.seed)
-                )
+                    run_episodes(setting.make_env(num_episodes), oracle_policy(grid), num_episodes,
+                                 self.seed)
+                )  # fmt: skip
             maps[str(map_seed)] = entry
         means = {
             f"mean_{n}": float(np.mean([m[n] for m in maps.values()])) for n in self.conditions
@@ -209,3 +293,19 @@ class MultiAgentEvaluator:
 
     def _rules(self) -> tuple[str, int, int]:
         return self.setting.reward_mode, self.setting.max_steps, self.setting.obs_window
+
+
+def render_state(
+    grid: np.ndarray, positions: np.ndarray, step: int, max_steps: int, messages
+) -> str:
+    """Text picture of one state: A, B (* when sharing a cell), T target, X obstacle, and
+    the step with the messages just sent."""
+    cells = np.array([".", "X", "T"])[np.where(grid == OBSTACLE, 1, np.where(grid == TARGET, 2, 0))]
+    (row_a, col_a), (row_b, col_b) = positions
+    cells[row_a, col_a] = "A"
+    cells[row_b, col_b] = "*" if (row_a, col_a) == (row_b, col_b) else "B"
+    picture = "\n".join(" ".join(row) for row in cells)
+    return (
+        f"{picture}\nstep {step}/{max_steps}  message A->B {float(messages[0]):.2f}  "
+        f"B->A {float(messages[1]):.2f}"
+    )

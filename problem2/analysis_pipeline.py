@@ -12,52 +12,53 @@ from __future__ import annotations
 import argparse
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
+from functools import partial
 from typing import Any
 
 import numpy as np
-from _atomic import write_json_atomic
-from analysis_episodes import (
-    FAILURE_KINDS,
-    FAILURE_WINDOW,
-    LOOP_CELLS,
-    PARKED_SHARE,
-    SWAP_RADIUS,
-    episode_summary,
-)
+import torch
+from analysis_episodes import episode_summary
 from analysis_evaluator import GENERALIZATION_MAP_SEEDS, MultiAgentEvaluator
+from analysis_failures import (
+    DECOMPOSITION,
+    FAILURE_DEFINITIONS,
+    FAILURE_KINDS,
+    failure_decomposition,
+)
+from analysis_information import MEASURES, communication_measures
+from analysis_interventions import (
+    CHANNEL_INTERVENTIONS,
+    CHANNEL_MODES,
+    INTERVENTIONS,
+    VERDICTS,
+    channel_verdict,
+    legacy_message_test,
+    mean_received,
+    raising,
+)
 from analysis_messages import (
     FEATURE_DESCRIPTIONS,
-    mean_message_per_cell,
     message_correlations,
     message_distribution,
 )
-from analysis_plots import plot_message_heatmap, plot_trajectories, save_episode_gif
-from analysis_report import create_evaluation_report
-from analysis_runs import Experiment, best_seed, load_model_pair
+from analysis_runs import (
+    Experiment,
+    best_seed,
+    load_model_pair,
+    model_paths,
+    relative_models_dir,
+)
 from analysis_stats import BOOTSTRAP_RESAMPLES, seed_statistics
-from analysis_traces import representative_traces
-from baselines import oracle_policy, random_policy
+from baselines import POLICIES
 from grid_maps import generate_map
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, EpisodeResults, summarize
 
 CONDITIONS = ("greedy", "eps")
-FAILURE_DEFINITIONS = {
-    "window": f"the last {FAILURE_WINDOW} steps of a failed (timed-out) episode",
-    "swapping": f"at least 2 steps of the window in which the agents exchange cells, both "
-    f"cells within Manhattan distance {SWAP_RADIUS} of the target",
-    "parked": f"one agent on the target at the end and at >= {PARKED_SHARE:.0%} of the "
-    "window's positions, the other never on it in the episode",
-    "looping": f"each agent visits at most {LOOP_CELLS} distinct cells in the window "
-    "(moving among a few cells or standing still)",
-    "other": "none of the above; kinds are checked in the order listed",
-}
 MESSAGE_TEST = {
     "real": "the partner's message as sent",
-    "shuffled": "at each step, the message that arrived at the same step in another running "
-    "episode (random cyclic pairing; the multiset of messages per step is kept)",
-    "zeroed": "0, as at an episode's start (out of distribution elsewhere)",
+    "shuffled": "intervention same_step: the message another episode received at the same step",
+    "zeroed": "intervention constant_0: the message 0 at every step",
 }
 
 
@@ -80,8 +81,11 @@ def _evaluator(
         max_steps=int(settings["max_steps"]),
         reward_mode=settings["reward_mode"],
     )
-    models = load_model_pair(experiment.models_dir, mode, seed) if mode else (None, None)
-    return MultiAgentEvaluator(env, *models, epsilon=epsilon, **kw)
+    if mode is None:
+        return MultiAgentEvaluator(env, epsilon=epsilon, **kw)
+    models = load_model_pair(experiment.models_dir, mode, seed)
+    names = tuple(str(path) for path in model_paths(experiment.models_dir, mode, seed))
+    return MultiAgentEvaluator(env, *models, epsilon=epsilon, names=names, **kw)
 
 
 def aggregate(summaries: list[dict]) -> dict[str, Any]:
@@ -95,74 +99,88 @@ def aggregate(summaries: list[dict]) -> dict[str, Any]:
     result["failures"] = {
         kind: seed_statistics([s["failures"][kind] for s in summaries]) for kind in FAILURE_KINDS
     }
+    result["failure_decomposition"] = {
+        key: seed_statistics([s["failure_decomposition"][key] for s in summaries])
+        for key in DECOMPOSITION
+    }
     return result
 
 
-def message_verdict(causal: dict[str, dict], epsilon: float) -> tuple[bool, str]:
-    """(used, plain-language verdict) from the real − shuffled success difference and its
-    95 % bootstrap CI over seeds (with one seed, the episode-level CI). The message counts
-    as used when the CI of the ε-greedy condition lies above 0."""
-    parts, used = [], False
-    for name in CONDITIONS:
-        diff = causal[name]["real_minus_shuffled"]
-        low, high = diff["ci95"] if diff["n"] > 1 else diff["episode_ci95"]
-        label = "greedy" if name == "greedy" else f"ε = {epsilon}"
-        span = f"real − shuffled = {diff['mean']:+.3f} (95 % CI [{low:+.3f}, {high:+.3f}])"
-        if low > 0:
-            parts.append(f"{label}: {span}, above 0: the partner relies on its content")
-            used = used or name == "eps"
-        elif high < 0:
-            parts.append(
-                f"{label}: {span}, below 0: a message from another episode does better than "
-                "the real one (a random input can break a greedy policy's loops)"
+def _intervention_tests(
+    evaluators: dict[int, MultiAgentEvaluator],
+    real: dict[int, dict[str, EpisodeResults]],
+    mode: str,
+    num_episodes: int,
+) -> dict[str, Any]:
+    """Success under every intervention on each channel the mode reads (one batch per
+    seed, :meth:`MultiAgentEvaluator.intervention_test`; ``constant_mean`` is the mode's
+    mean received value over its seeds), Δsuccess (intervention − real, paired by episode
+    and exploration draws) as seed statistics, and a verdict."""
+    channels = tuple(c for c in CHANNEL_MODES if mode in CHANNEL_MODES[c])
+    if not channels:
+        return {}
+    message_index = next(iter(evaluators.values())).setting.obs_window ** 2
+    indices = {"message": message_index, "distance": message_index + 1}
+    constants = {
+        (channel, condition): mean_received([r[condition] for r in real.values()], indices[channel])
+        for channel in channels
+        for condition in CONDITIONS
+    }
+    rates = {
+        seed: evaluator.intervention_test(num_episodes, real[seed], channels, constants, seed)
+        for seed, evaluator in evaluators.items()
+    }
+    tests: dict[str, Any] = {}
+    for channel in channels:
+        kinds = CHANNEL_INTERVENTIONS[channel]
+        entry: dict[str, Any] = {"observation_index": indices[channel]}
+        for condition in CONDITIONS:
+            per_seed = {s: rates[s][channel][condition] for s in rates}
+            delta = {
+                k: seed_statistics([r[k] - r["real"] for r in per_seed.values()]) for k in kinds[1:]
+            }
+            verdict = channel_verdict(delta)
+            helps = raising(delta)
+            text = VERDICTS[verdict] + (
+                f"; success rises under {', '.join(helps)} (95 % CI above 0)" if helps else ""
             )
-        else:
-            parts.append(f"{label}: {span} includes 0")
-    head = (
-        "The message carries information the partner uses."
-        if used
-        else "No evidence that the message carries anything the partner uses: replacing it "
-        "by a message from another episode does not lower success."
-    )
-    return used, f"{head} " + "; ".join(parts) + "."
-
-
-def aggregate_causal(per_seed: list[dict], epsilon: float) -> dict[str, Any]:
-    """Seed statistics of each message condition's success and of the differences."""
-    causal: dict[str, Any] = {}
-    for name in CONDITIONS:
-        tests = [seed_test[name] for seed_test in per_seed]
-        causal[name] = {m: seed_statistics([t[m] for t in tests]) for m in MESSAGE_TEST}
-        for key in ("real_minus_shuffled", "real_minus_zeroed"):
-            causal[name][key] = seed_statistics([t[key]["mean"] for t in tests])
-            if len(tests) == 1:
-                causal[name][key]["episode_ci95"] = tests[0][key]["ci95"]
-    used, causal["verdict"] = message_verdict(causal, epsilon)
-    causal["message_used"] = used
-    return causal
+            entry[condition] = {
+                "constant_mean_value": constants[channel, condition],
+                "raising_interventions": helps,
+                "success": {k: seed_statistics([r[k] for r in per_seed.values()]) for k in kinds},
+                "delta_success": delta,
+                "verdict": verdict,
+                "verdict_text": text,
+            }
+        tests[channel] = entry
+    return tests
 
 
 def evaluate_mode(
     experiment: Experiment, mode: str, num_episodes: int, epsilon: float
 ) -> tuple[dict, dict, dict[str, EpisodeResults]]:
     """Performance and communication entries of one mode, and the best seed's episodes."""
-    per_seed_perf, per_seed_comm, seed_runs = {}, {}, {}
+    per_seed_perf, per_seed_comm, seed_runs, evaluators = {}, {}, {}, {}
     target = tuple(int(v) for v in np.argwhere(experiment.grid == 2)[0])
     for seed in experiment.seeds[mode]:
-        evaluator = _evaluator(experiment, epsilon, mode, seed)
-        runs = evaluator.run_conditions(num_episodes)
+        evaluator = evaluators[seed] = _evaluator(experiment, epsilon, mode, seed)
+        runs = seed_runs[seed] = evaluator.run_conditions(num_episodes)
         per_seed_perf[str(seed)] = {
             name: episode_summary(runs[name], target, evaluator.conditions[name])
+            | {"failure_decomposition": failure_decomposition(runs[name], target)}
             for name in CONDITIONS
         }
+        q_functions = tuple(
+            (lambda obs, m=m: m(torch.from_numpy(obs))[0].detach().numpy())
+            for m in (evaluator.model_A, evaluator.model_B)
+        )
         per_seed_comm[str(seed)] = {
             "messages": message_distribution(runs["greedy"]),
             "correlations": message_correlations(runs["greedy"], experiment.grid),
+            "measures": communication_measures(
+                runs["greedy"], experiment.grid, q_functions, epsilon
+            ),
         }
-        if mode != "independent":
-            causal = evaluator.causal_message_test(num_episodes, runs)
-            per_seed_comm[str(seed)]["causal"] = causal
-        seed_runs[seed] = runs
     chosen = best_seed(experiment, mode)
     if chosen is None:  # no best-pair files: take the best seed of this evaluation
         chosen = max(seed_runs, key=lambda s: per_seed_perf[str(s)]["eps"]["success_rate"])
@@ -174,21 +192,37 @@ def evaluate_mode(
         "per_seed": per_seed_perf,
     }
     communication: dict[str, Any] = {"label": experiment.label(mode), "per_seed": per_seed_comm}
-    if mode != "independent":
-        tests = [entry["causal"] for entry in per_seed_comm.values()]
-        communication["causal"] = aggregate_causal(tests, epsilon)
+    communication["measures"] = aggregate_measures([c["measures"] for c in per_seed_comm.values()])
+    tests = _intervention_tests(evaluators, seed_runs, mode, num_episodes)
+    if tests:
+        communication["interventions"] = tests
+    if "message" in tests:
+        communication["causal"] = legacy_message_test(tests["message"], epsilon)
     return performance, communication, seed_runs[chosen]
+
+
+def aggregate_measures(per_seed: list[dict]) -> dict[str, Any]:
+    """Seed statistics of every communication measure, per bin count and sender."""
+    first = per_seed[0]
+    return {
+        bins: {
+            measure: {
+                sender: seed_statistics([entry[bins][measure][sender] for entry in per_seed])
+                for sender in first[bins][measure]
+            }
+            for measure in first[bins]
+        }
+        for bins in first
+    }
 
 
 def evaluate_experiment(
     experiment: Experiment, num_episodes: int, epsilon: float
 ) -> ExperimentOutcome:
-    """Every mode and seed of ``experiment`` beside the random and oracle policies."""
+    """Every mode and seed of ``experiment`` beside the baseline policies (greedy)."""
     baselines = {}
-    for name, factory in (
-        ("random", lambda grid: random_policy(EVAL_SEED)),
-        ("oracle", oracle_policy),
-    ):
+    for name, policy in POLICIES.items():
+        factory = partial(lambda grid, make: make(grid, EVAL_SEED), make=policy)
         evaluator = _evaluator(experiment, epsilon, policy_factory=factory)
         results = evaluator.run(num_episodes)
         baselines[name] = episode_summary(results, evaluator.setting.target, 0.0)
@@ -196,7 +230,8 @@ def evaluate_experiment(
     info = {
         key: settings.get(key) for key in ("map_seed", "reward_mode", "comm_learning", "max_steps")
     }
-    info |= {"models_dir": str(experiment.models_dir), "grid": experiment.grid.tolist()}
+    info |= {"models_dir": relative_models_dir(experiment.name), "grid": experiment.grid.tolist()}
+    info["manifest"] = experiment.manifest is not None
     info["target"] = [int(v) for v in np.argwhere(experiment.grid == 2)[0]]
     outcome = ExperimentOutcome(
         performance={**info, "baselines": baselines, "modes": {}},
@@ -211,17 +246,15 @@ def evaluate_experiment(
 
 
 def evaluate_generalization(experiment: Experiment, num_episodes: int, epsilon: float) -> dict:
-    """Every model pair of ``experiment`` on map seeds 0–9, beside the oracle and the
-    random policy on each map; per map and mode, seed statistics of the success rate."""
+    """Every model pair of ``experiment`` on map seeds 0–9, beside the baseline policies on
+    each map; per map and mode, seed statistics of the success rate."""
     size = experiment.grid.shape
     maps: dict[str, dict] = {}
     for map_seed in GENERALIZATION_MAP_SEEDS:
         grid = generate_map(size, map_seed)
         entry: dict[str, Any] = {"target": [int(v) for v in np.argwhere(grid == 2)[0]]}
-        for name, factory in (
-            ("random", lambda g: random_policy(EVAL_SEED)),
-            ("oracle", oracle_policy),
-        ):
+        for name, policy in POLICIES.items():
+            factory = partial(lambda g, make: make(g, EVAL_SEED), make=policy)
             evaluator = MultiAgentEvaluator(
                 MultiAgentEnv(grid=grid, max_steps=int(experiment.settings["max_steps"])),
                 policy_factory=factory,
@@ -252,6 +285,36 @@ def evaluate_generalization(experiment: Experiment, num_episodes: int, epsilon: 
         "map_seeds": list(GENERALIZATION_MAP_SEEDS),
         "maps": maps,
         "mean_over_maps": summary,
+        "baselines_mean_over_maps": {
+            name: float(np.mean([entry[name]["success_rate"] for entry in maps.values()]))
+            for name in POLICIES
+        },
+    }
+
+
+HELD_OUT_MAP_SEEDS = tuple(range(1000, 1040))  # maps no model or setting was chosen on
+
+
+def evaluate_held_out_baselines(size: tuple[int, int], max_steps: int, num_episodes: int) -> dict:
+    """Every baseline policy (greedy) on ``HELD_OUT_MAP_SEEDS``: success per map and its
+    mean over maps with a 95 % bootstrap CI over maps. What needs no learning, off the
+    training map."""
+    per_map: dict[str, list[float]] = {name: [] for name in POLICIES}
+    for map_seed in HELD_OUT_MAP_SEEDS:
+        env = MultiAgentEnv(grid=generate_map(size, map_seed), max_steps=max_steps)
+        for name, policy in POLICIES.items():
+            factory = partial(
+                lambda g, make, seed: make(g, seed), make=policy, seed=EVAL_SEED + map_seed
+            )
+            results = MultiAgentEvaluator(env, policy_factory=factory).run(
+                num_episodes, record=False
+            )
+            per_map[name].append(float(results.successes.mean()))
+    return {
+        "map_seeds": list(HELD_OUT_MAP_SEEDS),
+        "episodes_per_map": num_episodes,
+        "success_rate": {name: seed_statistics(rates) for name, rates in per_map.items()},
+        "note": "ci95 and per_seed are over maps here",
     }
 
 
@@ -274,12 +337,15 @@ def evaluate_all(
         print(f"evaluated {experiment.name} ({time.perf_counter() - start:.0f} s)")
     results: dict[str, Any] = {
         "performance": {
-            "protocol": protocol | {"failure_definitions": FAILURE_DEFINITIONS},
+            "protocol": protocol
+            | {"failure_definitions": FAILURE_DEFINITIONS, "failure_decomposition": DECOMPOSITION},
             "experiments": {name: o.performance for name, o in outcomes.items()},
         },
         "communication": {
             "protocol": protocol
-            | {"message_conditions": MESSAGE_TEST, "features": FEATURE_DESCRIPTIONS},
+            | {"message_conditions": MESSAGE_TEST, "features": FEATURE_DESCRIPTIONS}
+            | {"interventions": INTERVENTIONS, "channel_interventions": CHANNEL_INTERVENTIONS}
+            | {"verdicts": VERDICTS, "measures": MEASURES},
             "experiments": {name: o.communication for name, o in outcomes.items()},
         },
     }
@@ -288,56 +354,8 @@ def evaluate_all(
         results["generalization"] = evaluate_generalization(
             main, args.generalization_episodes, args.epsilon
         )
+        results["generalization"]["held_out"] = evaluate_held_out_baselines(
+            main.grid.shape, int(main.settings["max_steps"]), args.generalization_episodes
+        )
         print(f"evaluated generalisation ({time.perf_counter() - start:.0f} s)")
     return results, outcomes
-
-
-def failure_analysis(performance: dict) -> dict[str, Any]:
-    """The failure shares of every experiment and mode (from ``performance``)."""
-    return {
-        "definitions": FAILURE_DEFINITIONS,
-        "experiments": {
-            name: {
-                mode: {c: entry[c]["failures"] for c in CONDITIONS}
-                | {"baselines": {b: v["failures"] for b, v in experiment["baselines"].items()}}
-                for mode, entry in experiment["modes"].items()
-            }
-            for name, experiment in performance["experiments"].items()
-        },
-    }
-
-
-def write_outputs(
-    results: dict[str, Any], outcomes: dict[str, ExperimentOutcome], output_dir: Path
-) -> list[Path]:
-    """Write the JSON files, ``comparison_table.md`` and the figures of the main experiment
-    (or the first one evaluated) to ``output_dir``; return the paths written."""
-    output_dir = Path(output_dir)
-    written = [
-        write_json_atomic(output_dir / "performance.json", results["performance"]),
-        write_json_atomic(output_dir / "communication_analysis.json", results["communication"]),
-        write_json_atomic(
-            output_dir / "failure_analysis.json", failure_analysis(results["performance"])
-        ),
-    ]
-    if "generalization" in results:
-        written.append(
-            write_json_atomic(output_dir / "generalization.json", results["generalization"])
-        )
-    written.append(create_evaluation_report(results, output_dir / "comparison_table.md"))
-    name, outcome = next(iter(outcomes.items()))
-    entry = results["performance"]["experiments"][name]
-    grid, target = np.array(entry["grid"]), tuple(entry["target"])
-    rows, heat = [], []
-    for mode, runs in outcome.runs.items():
-        label = f"{mode} (seed {entry['modes'][mode]['best_seed']})"
-        traces = representative_traces(runs, target)
-        rows.append((label, traces))
-        heat.append((label, mean_message_per_cell(runs["greedy"], grid.shape)))
-        shown = traces[0] or traces[1]
-        if shown is not None:
-            title = f"{mode}: {'success' if shown.success else 'failure'}"
-            written.append(save_episode_gif(shown, grid, output_dir / f"episode_{mode}.gif", title))
-    written.append(plot_trajectories(rows, grid, output_dir / "trajectories.png"))
-    written.append(plot_message_heatmap(heat, grid, output_dir / "comm_heatmap.png"))
-    return written

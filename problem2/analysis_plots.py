@@ -1,10 +1,13 @@
-"""Figures of Problem 2's evaluation: episode paths, the message per grid cell and an
-animated episode. Figures use ``matplotlib.figure.Figure`` (no pyplot) and are written
-atomically."""
+"""Figures of Problem 2's evaluation: episode paths, the message per grid cell, the channel
+interventions and an animated episode. Figures use ``matplotlib.figure.Figure`` (no pyplot)
+and are written atomically. Static figures are ``PRINT_WIDTH`` inches wide, the width of
+an A4 page's text, with text of at least ``MIN_FONT`` points: legible when printed."""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +20,26 @@ from matplotlib.figure import Figure
 
 AGENT_COLOURS = ("#1f77b4", "#d62728")  # A blue, B red
 AGENT_OFFSETS = (-0.12, 0.12)  # so that the two paths stay apart where they overlap
+PRINT_WIDTH = 6.5  # inches: an A4 page's text width, so figures print at about 1:1
+MIN_FONT = 9  # points, at print size
+FONT_SIZES = {
+    "font.size": 10,
+    "axes.titlesize": 10,
+    "axes.labelsize": 10,
+    "xtick.labelsize": MIN_FONT,
+    "ytick.labelsize": MIN_FONT,
+    "legend.fontsize": MIN_FONT,
+    "figure.titlesize": 11,
+}
+
+
+@contextmanager
+def legible() -> Iterator[None]:
+    """Font sizes for figures printed at ``PRINT_WIDTH``."""
+    from matplotlib import rc_context
+
+    with rc_context(FONT_SIZES):
+        yield
 
 
 def draw_map(ax: Axes, grid: np.ndarray) -> None:
@@ -47,48 +70,148 @@ def plot_trajectories(
 ) -> Path:
     """One row per mode (label, [successful episode, failed episode]); None draws an empty
     panel saying that no such episode occurred."""
-    fig = Figure(figsize=(9, 4.3 * len(rows)), layout="constrained")
+    with legible():
+        fig = Figure(figsize=(PRINT_WIDTH, 3.4 * len(rows) + 0.6), layout="constrained")
+        _draw_trajectories(fig, rows, grid)
+        return save_figure(fig, path)
+
+
+def _draw_trajectories(
+    fig: Figure, rows: list[tuple[str, list[EpisodeTrace | None]]], grid: np.ndarray
+) -> None:
     axes = np.atleast_2d(fig.subplots(len(rows), 2))
     for (label, traces), row_axes in zip(rows, axes, strict=True):
         for ax, trace, kind in zip(row_axes, traces, ("successful", "failed"), strict=True):
             draw_map(ax, grid)
             if trace is None:
-                ax.set_title(f"{label}: no {kind} episode", fontsize=10)
+                ax.set_title(f"{label}:\nno {kind} episode")
                 continue
             draw_paths(ax, trace)
             steps = f"{trace.length} step{'s' if trace.length != 1 else ''}"
             outcome = f"success in {steps}" if trace.success else "failure"
             detail = f" ({trace.description})" if trace.description else ""
-            ax.set_title(f"{label}: {outcome}{detail}", fontsize=10)
-    axes[0, 0].legend(loc="upper left", bbox_to_anchor=(0, -0.12), ncol=4, fontsize=8)
-    fig.suptitle("Representative episodes (A blue, B red; ★ target, grey obstacles)")
-    return save_figure(fig, path)
+            ax.set_title(f"{label}:\n{outcome}{detail}")
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=4)
+    fig.suptitle("Representative episodes (A blue, B red; star: target; grey: obstacles)")
 
 
 def plot_message_heatmap(
     panels: list[tuple[str, np.ndarray]], grid: np.ndarray, path: str | Path
 ) -> Path:
     """One row per (label, mean message (2, H, W)); columns agent A and agent B. Cells an
-    agent never sent from are light grey, obstacles dark grey."""
-    fig = Figure(figsize=(9, 4 * len(panels)), layout="constrained")
-    axes = np.atleast_2d(fig.subplots(len(panels), 2))
-    image = None
-    for (label, means), row_axes in zip(panels, axes, strict=True):
-        for agent, ax in enumerate(row_axes):
-            values = np.ma.masked_invalid(np.where(grid == OBSTACLE, np.nan, means[agent]))
-            cmap = _viridis_with_grey()
-            image = ax.imshow(values, cmap=cmap, vmin=0, vmax=1)
-            ax.imshow(np.ma.masked_where(grid != OBSTACLE, grid), cmap="gray", vmin=0, vmax=2)
-            target_row, target_col = np.argwhere(grid == TARGET)[0]
-            ax.plot(target_col, target_row, marker="*", markersize=16, mfc="none", mec="white")
-            ax.set_title(f"{label}: message sent by agent {'AB'[agent]}", fontsize=10)
-            ax.set_xlabel("column")
-            ax.set_ylabel("row")
-    if image is not None:
-        fig.colorbar(image, ax=axes, shrink=0.9, label="mean message sent (0–1)")
-    fig.suptitle("Mean message sent from each cell (greedy test episodes of the best seed)")
-    fig.supxlabel("☆ target; dark grey: obstacle; light grey: never visited", fontsize=9)
-    return save_figure(fig, path)
+    agent never sent from are light grey, obstacles dark grey, the target a white star."""
+    with legible():
+        fig = Figure(figsize=(PRINT_WIDTH, 3.0 * len(panels) + 0.9), layout="constrained")
+        axes = np.atleast_2d(fig.subplots(len(panels), 2))
+        image = None
+        target_row, target_col = np.argwhere(grid == TARGET)[0]
+        for (label, means), row_axes in zip(panels, axes, strict=True):
+            for agent, ax in enumerate(row_axes):
+                values = np.ma.masked_invalid(np.where(grid == OBSTACLE, np.nan, means[agent]))
+                image = ax.imshow(values, cmap=_viridis_with_grey(), vmin=0, vmax=1)
+                ax.imshow(np.ma.masked_where(grid != OBSTACLE, grid), cmap="gray", vmin=0, vmax=2)
+                ax.plot(target_col, target_row, marker="*", markersize=14, mfc="none", mec="white")
+                ax.set_title(f"{label}: sent by {'AB'[agent]}")
+                ax.set_xticks(range(0, grid.shape[1], 2))
+                ax.set_yticks(range(0, grid.shape[0], 2))
+                ax.set_xlabel("column")
+                ax.set_ylabel("row")
+        if image is not None:
+            fig.colorbar(image, ax=axes, shrink=0.8, label="mean message sent (0 to 1)")
+        fig.suptitle("Mean message sent from each cell (greedy test episodes, best seed)")
+        fig.supxlabel("white star: target; dark grey: obstacle; light grey: never visited")
+        return save_figure(fig, path, dpi=200)
+
+
+def plot_interventions(modes: dict[str, dict], path: str | Path) -> Path:
+    """Δsuccess (intervention − real) with its 95 % CI over seeds, one panel per mode and
+    channel (``modes``: mode -> channel -> the ``interventions`` entry), greedy and
+    ε-greedy side by side."""
+    panels = [(mode, channel, entry) for mode, channels in modes.items()
+              for channel, entry in channels.items()]  # fmt: skip
+    with legible():
+        fig = Figure(figsize=(PRINT_WIDTH, 2.1 * len(panels) + 0.8), layout="constrained")
+        axes = np.atleast_1d(fig.subplots(len(panels), 1, squeeze=False)[:, 0])
+        for ax, (mode, channel, entry) in zip(axes, panels, strict=True):
+            kinds = list(entry["greedy"]["delta_success"])
+            rows = np.arange(len(kinds))
+            for offset, (condition, colour) in zip(
+                (-0.2, 0.2), (("greedy", "#4c72b0"), ("eps", "#dd8452")), strict=True
+            ):
+                stats = [entry[condition]["delta_success"][k] for k in kinds]
+                means = np.array([s["mean"] for s in stats])
+                lows = np.array([s["ci95"][0] for s in stats])
+                highs = np.array([s["ci95"][1] for s in stats])
+                label = "greedy" if condition == "greedy" else "ε-greedy"
+                ax.barh(rows + offset, means, height=0.38, color=colour, label=label,
+                        xerr=[means - lows, highs - means], capsize=2)  # fmt: skip
+            ax.axvline(0, color="black", linewidth=0.8)
+            ax.set_yticks(rows, [k.replace("_", " ") for k in kinds])
+            ax.invert_yaxis()
+            verdict = entry["eps"]["verdict"]
+            ax.set_title(f"{mode}: {channel} (verdict, ε-greedy: {verdict})")
+            ax.set_xlabel("Δ success vs the real input (95 % CI over seeds)")
+        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=2)
+        fig.suptitle("What happens when an input channel is replaced")
+        return save_figure(fig, path, dpi=200)
+
+
+def plot_measures(modes: dict[str, dict], bins: str, path: str | Path) -> Path:
+    """Each communication measure (``modes``: mode -> {"K2": {measure: {sender: seed
+    statistics}}}) per mode, senders A and B, mean with its 95 % CI over seeds."""
+    measures = list(next(iter(modes.values()))[bins])
+    with legible():
+        fig = Figure(figsize=(PRINT_WIDTH, 1.5 * len(measures) + 1.0), layout="constrained")
+        axes = fig.subplots(len(measures), 1, squeeze=False)[:, 0]
+        rows = np.arange(len(modes))
+        for ax, measure in zip(axes, measures, strict=True):
+            for offset, sender in zip((-0.2, 0.2), "AB", strict=True):
+                stats = [modes[mode][bins][measure][sender] for mode in modes]
+                means = np.array([s["mean"] for s in stats])
+                errors = np.array(
+                    [
+                        [m - s["ci95"][0], s["ci95"][1] - m]
+                        for m, s in zip(means, stats, strict=True)
+                    ]
+                ).T
+                colour = AGENT_COLOURS["AB".index(sender)]
+                ax.barh(rows + offset, means, height=0.38, xerr=np.maximum(errors, 0),
+                        capsize=2, color=colour, label=f"sender {sender}")  # fmt: skip
+            ax.set_yticks(rows, list(modes))
+            ax.invert_yaxis()
+            ax.set_title(measure.replace("_", " "))
+        axes[-1].set_xlabel(f"bits (message in {bins[1:]} bins; 95 % CI over seeds)")
+        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=2)
+        fig.suptitle("Communication measures (Lowe et al. 2019), greedy test episodes")
+        return save_figure(fig, path, dpi=200)
+
+
+def plot_failure_decomposition(modes: dict[str, dict], path: str | Path) -> Path:
+    """Share of test episodes that fail by navigation (an agent never reached the target)
+    and by timing (both did, never together), per mode and condition (``modes``: mode ->
+    the performance entry)."""
+    labels, navigation, timing = [], [], []
+    for mode, entry in modes.items():
+        for condition in ("greedy", "eps"):
+            failed = 1 - np.array(entry[condition]["success_rate"]["per_seed"])
+            shares = entry[condition]["failure_decomposition"]
+            labels.append(f"{mode}, {'greedy' if condition == 'greedy' else 'ε-greedy'}")
+            for kind, bars in (("navigation", navigation), ("timing", timing)):
+                per_seed = [0.0 if v is None else v for v in shares[kind]["per_seed"]]
+                bars.append(float(np.mean(failed * np.array(per_seed))))  # share of all episodes
+    with legible():
+        fig = Figure(figsize=(PRINT_WIDTH, 0.45 * len(labels) + 1.6), layout="constrained")
+        ax = fig.subplots()
+        rows = np.arange(len(labels))
+        ax.barh(rows, navigation, color="#8172b3", label="navigation: an agent never reached it")
+        ax.barh(rows, timing, left=navigation, color="#ccb974",
+                label="timing: both reached it, never together")  # fmt: skip
+        ax.set_yticks(rows, labels)
+        ax.invert_yaxis()
+        ax.set_xlabel("share of test episodes that fail (mean over seeds)")
+        fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=1)
+        fig.suptitle("Why episodes fail")
+        return save_figure(fig, path, dpi=200)
 
 
 def _viridis_with_grey():

@@ -1,8 +1,10 @@
 """The Markdown comparison of Problem 2's evaluation (``comparison_table.md``), built from
-the results dict of ``analysis_pipeline.evaluate_all``."""
+the results dict of ``analysis_pipeline.evaluate_all``, and the course's
+``create_evaluation_report`` (any results dict as JSON)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -203,26 +205,121 @@ def generalization_section(generalization: dict | None) -> list[str]:
     ]
 
 
+def intervention_section(communication: dict) -> list[str]:
+    """Main experiment: Δsuccess of every intervention with its CI, and the verdicts."""
+    modes = communication["experiments"].get("main", {}).get("modes", {})
+    rows, verdicts = [], []
+    for mode, entry in modes.items():
+        for channel, test in entry.get("interventions", {}).items():
+            for condition in ("greedy", "eps"):
+                deltas = test[condition]["delta_success"]
+                real = _stat(test[condition]["success"]["real"])
+                for kind, delta in deltas.items():
+                    rows.append([mode, channel, condition, real, kind, _stat(delta)])
+                verdicts.append(
+                    f"- {mode}, {channel}, {condition}: **{test[condition]['verdict']}**: "
+                    f"{test[condition]['verdict_text']}."
+                )
+    if not rows:
+        return []
+    header = ["mode", "channel", "condition", "success (real)", "intervention",
+              "Δ success [95 % CI over seeds]"]  # fmt: skip
+    return [
+        "## What the agents use of each input channel (main experiment)",
+        "",
+        *_table(header, rows),
+        "",
+        *verdicts,
+        "",
+    ]
+
+
+def decomposition_section(performance: dict) -> list[str]:
+    main = performance["experiments"].get("main") or next(iter(performance["experiments"].values()))
+    keys = ("navigation", "timing", "reached_and_left", "stay_on_target_share")
+    rows = [
+        [mode, condition, f"{1 - entry[condition]['success_rate']['mean']:.3f}"]
+        + [_stat(entry[condition]["failure_decomposition"][key]) for key in keys]
+        for mode, entry in main["modes"].items()
+        for condition in ("greedy", "eps")
+    ]
+    notes = [f"- **{k}**: {v}" for k, v in performance["protocol"]["failure_decomposition"].items()]
+    return [
+        "## Why episodes fail: navigation or timing (main experiment, mean over seeds)",
+        "",
+        *notes,
+        "",
+        *_table(["mode", "condition", "failed", *keys], rows),
+        "",
+    ]
+
+
+def measures_section(communication: dict) -> list[str]:
+    modes = communication["experiments"].get("main", {}).get("modes", {})
+    rows = []
+    for mode, entry in modes.items():
+        for bins, values in entry.get("measures", {}).items():
+            for measure, senders in values.items():
+                rows.append([mode, bins, measure, _stat(senders["A"]), _stat(senders["B"])])
+    if not rows:
+        return []
+    return [
+        "## Communication measures (Lowe et al. 2019; bits, greedy test episodes)",
+        "",
+        "The independent mode's partner never reads the message: its values are the "
+        "reference for the estimator's bias (its CIC is 0 by construction).",
+        "",
+        *_table(["mode", "bins", "measure", "sender A [95 % CI]", "sender B [95 % CI]"], rows),
+        "",
+    ]
+
+
+def held_out_section(generalization: dict | None) -> list[str]:
+    held_out = (generalization or {}).get("held_out")
+    if not held_out:
+        return []
+    rows = [[name, _stat(stat)] for name, stat in held_out["success_rate"].items()]
+    return [
+        f"## Baselines on {len(held_out['map_seeds'])} held-out maps "
+        f"({held_out['episodes_per_map']} episodes each; CI over maps)",
+        "",
+        *_table(["policy", "success [95 % CI]"], rows),
+        "",
+    ]
+
+
 def format_report(results: dict[str, Any], brief: bool = False) -> str:
     """Markdown of every section; ``brief``: the success table, the message verdicts and the
     generalisation summary only (for the console)."""
     performance = results["performance"]
     sections = [success_section(performance)]
     if not brief:
-        sections += [panel_section(performance), failure_section(performance)]
+        sections += [
+            panel_section(performance),
+            failure_section(performance),
+            decomposition_section(performance),
+        ]
     if "communication" in results:
         sections.append(message_section(results["communication"]))
+        if not brief:
+            sections.append(intervention_section(results["communication"]))
+            sections.append(measures_section(results["communication"]))
     sections.append(generalization_section(results.get("generalization")))
+    if not brief:
+        sections.append(held_out_section(results.get("generalization")))
     title = [] if brief else ["# Problem 2: evaluation of the trained agents", ""]
     return "\n".join(title + [line for section in sections for line in section])
 
 
-def create_evaluation_report(results: dict[str, Any], save_path: str | Path) -> Path:
-    """Write the Markdown comparison of ``results`` (keys ``performance`` and optionally
-    ``communication`` and ``generalization``, as ``python evaluate.py`` builds them) to
-    ``save_path`` atomically."""
-    if "performance" not in results:
-        raise ValueError("results must contain 'performance' (see analysis_pipeline.py)")
+def create_evaluation_report(
+    results: dict[str, Any], save_path: str | Path = "results/evaluation_report.json"
+) -> Path:
+    """Write ``results`` (any JSON-serialisable dict, e.g. what ``evaluate_performance`` or
+    ``python evaluate.py`` returns) to ``save_path`` as indented UTF-8 JSON, atomically;
+    the parent folder is created. NaN or Infinity is refused (ValueError): not JSON."""
+    if not isinstance(results, dict):
+        raise TypeError(f"results must be a dict, got {type(results).__name__}")
+    text = json.dumps(results, indent=2, allow_nan=False) + "\n"
     with temporary_path_for(save_path) as temporary:
-        temporary.write_text(format_report(results))
+        temporary.write_text(text, encoding="utf-8")
     return Path(save_path)

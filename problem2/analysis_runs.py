@@ -7,10 +7,17 @@ Layout of an experiment root (written by ``train.py``):
 (the best seed), ``agent_models/map.json``, ``agent_models/hyperparameters.json``.
 Study roots (same layout) live under ``<root>/studies/``: ``per_step``, ``no_dial`` and
 ``map_panel/map<K>``.
+
+A batch written by ``train.py`` carries ``agent_models/manifest.json`` (modes, seeds, map,
+hyperparameters, the sha256 of every model file). Where it exists, exactly its runs are
+evaluated: a listed file that is missing or whose sha256 differs, and a model file that it
+does not list, are errors naming the file. Without a manifest the model files found are
+evaluated (``Experiment.manifest`` is then None, and ``evaluate.py`` says so).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 from dataclasses import dataclass, field
@@ -26,6 +33,8 @@ DEFAULT_ROOT = PROBLEM2 / "results"
 MODES = ("independent", "comm", "full")
 NUM_ACTIONS = 5
 SEED_FILE = re.compile(r"^(independent|comm|full)_seed(\d+)_agent_A\.pt$")
+MANIFEST = "manifest.json"
+PROBE_ROWS = 256  # observations each loaded model is checked on before any evaluation
 DEFAULT_SETTINGS = {
     "map_seed": DEFAULT_MAP_SEED,
     "grid_size": 10,
@@ -44,6 +53,8 @@ class Experiment:
     settings: dict
     grid: np.ndarray
     seeds: dict[str, list[int]] = field(default_factory=dict)  # mode -> seeds, sorted
+    manifest: dict | None = None  # the batch manifest, None if the folder has none
+    best: dict[str, int] = field(default_factory=dict)  # mode -> seed of the best pair
 
     def label(self, mode: str) -> str:
         """Row label of ``mode`` in tables, e.g. ``full (per_step reward)``."""
@@ -69,33 +80,118 @@ def study_model_dirs(checkpoint_dir: Path) -> list[tuple[str, Path]]:
     return candidates
 
 
-def read_experiment(name: str, models_dir: Path) -> Experiment | None:
-    """The experiment in ``models_dir`` (None if it holds no seed model files).
+def sha256_of(path: Path) -> str:
+    """Hex sha256 of the file's bytes."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
-    Settings come from ``hyperparameters.json`` (defaults of the main experiment where it
-    is missing) and the map from ``map.json`` (else drawn from the settings' map seed)."""
-    found: dict[str, list[int]] = {}
-    for path in models_dir.glob("*_seed*_agent_A.pt") if models_dir.is_dir() else []:
-        if match := SEED_FILE.match(path.name):
-            found.setdefault(match[1], []).append(int(match[2]))
-    if not found:
+
+def relative_models_dir(name: str) -> str:
+    """The agent_models folder of experiment ``name`` relative to the results root (as
+    :func:`study_model_dirs` lays them out), for outputs that must hold no absolute path."""
+    return "agent_models" if name == "main" else f"studies/{name}/agent_models"
+
+
+def read_manifest(models_dir: Path) -> dict | None:
+    """The batch manifest of ``models_dir`` (None if there is none); ValueError naming the
+    file if it is not valid JSON of the expected form."""
+    path = Path(models_dir) / MANIFEST
+    if not path.is_file():
         return None
+    try:
+        manifest = json.loads(path.read_text(encoding="utf-8"))
+        runs = manifest["runs"]
+        for name, run in runs.items():
+            if run["mode"] not in MODES or not isinstance(run["seed"], int):
+                raise ValueError(f"run {name}: unknown mode or non-integer seed")
+            for agent in "AB":
+                run["models"][agent], run["sha256"][agent]  # noqa: B018 (presence check)
+    except (json.JSONDecodeError, KeyError, TypeError, AttributeError, ValueError) as error:
+        raise ValueError(f"{path}: not a valid batch manifest ({error!r})") from error
+    return manifest
+
+
+def _check_manifest_files(models_dir: Path, manifest: dict) -> dict[str, int]:
+    """Check every model file of ``models_dir`` against ``manifest``; return mode -> seed of
+    the best pair. Errors name the file: missing, changed since training (sha256) or not
+    listed (a model of another batch)."""
+    expected: dict[str, str] = {}
+    for run in manifest["runs"].values():
+        for agent in "AB":
+            expected[run["models"][agent]] = run["sha256"][agent]
+    best: dict[str, int] = {}
+    for mode, run_name in (manifest.get("best") or {}).items():
+        run = manifest["runs"].get(run_name)
+        if run is None:
+            raise ValueError(f"{models_dir / MANIFEST}: best run {run_name!r} is not listed")
+        best[mode] = run["seed"]
+        for agent in "AB":
+            if (models_dir / f"{mode}_agent_{agent}.pt").exists():
+                expected[f"{mode}_agent_{agent}.pt"] = run["sha256"][agent]
+    for name, digest in sorted(expected.items()):
+        path = models_dir / name
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: listed in {MANIFEST} but missing")
+        if sha256_of(path) != digest:
+            raise ValueError(
+                f"{path}: damaged or replaced (its sha256 differs from {MANIFEST}); "
+                "retrain or restore the file"
+            )
+    unlisted = sorted(p.name for p in models_dir.glob("*.pt") if p.name not in expected)
+    if unlisted:
+        raise ValueError(
+            f"{models_dir}: model files not listed in {MANIFEST} (another batch's?): "
+            f"{', '.join(unlisted)}; remove them or retrain into a fresh folder"
+        )
+    return best
+
+
+def _settings_and_grid(models_dir: Path, manifest: dict | None) -> tuple[dict, np.ndarray]:
     settings = dict(DEFAULT_SETTINGS)
     hyperparameters = models_dir / "hyperparameters.json"
-    if hyperparameters.is_file():
+    if manifest is not None:
+        settings |= manifest.get("hyperparameters", {})
+        settings |= {k: manifest[k] for k in ("map_seed", "reward_mode") if k in manifest}
+    elif hyperparameters.is_file():
         try:
-            settings |= json.loads(hyperparameters.read_text())
+            settings |= json.loads(hyperparameters.read_text(encoding="utf-8"))
         except json.JSONDecodeError as error:
             raise ValueError(f"{hyperparameters}: not valid JSON ({error})") from error
+    size = settings["grid_size"]
+    rows, cols = (size, size) if isinstance(size, int) else (size[0], size[-1])
     map_file = models_dir / "map.json"
-    size = int(settings["grid_size"])
     grid = (
         load_map(map_file)
         if map_file.is_file()
-        else generate_map((size, size), int(settings["map_seed"]))
+        else generate_map((int(rows), int(cols)), int(settings["map_seed"]))
     )
+    return settings, grid
+
+
+def read_experiment(name: str, models_dir: Path) -> Experiment | None:
+    """The experiment in ``models_dir`` (None if it holds no manifest and no seed model
+    files).
+
+    With a manifest: its runs, settings and best pairs, every file checked (see the module
+    docstring). Without: the ``<mode>_seed<seed>_agent_A.pt`` files found, settings from
+    ``hyperparameters.json`` (the main experiment's defaults where missing). The map comes
+    from ``map.json``, else it is drawn from the settings' map seed and grid size."""
+    models_dir = Path(models_dir)
+    manifest = read_manifest(models_dir) if models_dir.is_dir() else None
+    found: dict[str, list[int]] = {}
+    best: dict[str, int] = {}
+    if manifest is not None:
+        best = _check_manifest_files(models_dir, manifest)
+        for run in manifest["runs"].values():
+            found.setdefault(run["mode"], []).append(run["seed"])
+    else:
+        for path in models_dir.glob("*_seed*_agent_A.pt") if models_dir.is_dir() else []:
+            if match := SEED_FILE.match(path.name):
+                found.setdefault(match[1], []).append(int(match[2]))
+    if not found:
+        return None
+    settings, grid = _settings_and_grid(models_dir, manifest)
     seeds = {mode: sorted(found[mode]) for mode in MODES if mode in found}
-    return Experiment(name, models_dir, settings, grid, seeds)
+    return Experiment(name, models_dir, settings, grid, seeds, manifest, best)
 
 
 def discover_experiments(checkpoint_dir: Path = DEFAULT_ROOT / "agent_models") -> list[Experiment]:
@@ -108,6 +204,30 @@ def discover_experiments(checkpoint_dir: Path = DEFAULT_ROOT / "agent_models") -
     return experiments
 
 
+def resolve_checkpoint(path: Path) -> tuple[Path, str | None]:
+    """The agent_models folder named by ``--checkpoint`` (relative paths against the current
+    folder) and a note if it was found inside a run folder; ValueError saying what is
+    wrong (missing, a file, no models)."""
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"--checkpoint {path}: no such folder")
+    if not path.is_dir():
+        hint = f" (did you mean {path.parent}?)" if path.suffix == ".pt" else ""
+        raise ValueError(
+            f"--checkpoint {path} is a file; give the agent_models folder that holds the "
+            f"model files{hint}"
+        )
+    has_models = (path / MANIFEST).is_file() or any(path.glob("*_seed*_agent_A.pt"))
+    if not has_models and (path / "agent_models").is_dir():
+        return path / "agent_models", f"using {path / 'agent_models'} (the run folder's models)"
+    if not has_models:
+        raise ValueError(
+            f"--checkpoint {path}: no trained models (no {MANIFEST}, no "
+            "<mode>_seed<seed>_agent_A.pt); run train.py first"
+        )
+    return path, None
+
+
 def model_paths(models_dir: Path, mode: str, seed: int | None = None) -> tuple[Path, Path]:
     """Files of agents A and B: the best pair of ``mode`` (``seed`` None) or one seed's."""
     if mode not in MODES:
@@ -116,22 +236,58 @@ def model_paths(models_dir: Path, mode: str, seed: int | None = None) -> tuple[P
     return models_dir / f"{stem}_agent_A.pt", models_dir / f"{stem}_agent_B.pt"
 
 
-def load_checked_policy(path: Path) -> torch.jit.ScriptModule:
-    """Load one exported policy and check that it maps observations [B, 11] to
-    (Q-values [B, 5], message [B, 1] in [0, 1]); errors name the file."""
-    model = load_policy(path)  # FileNotFoundError / ValueError naming the file
+def probe_observations(obs_dim: int = OBSERVATION_DIM, rows: int = PROBE_ROWS) -> torch.Tensor:
+    """Observations [rows, obs_dim] a policy may meet: patches of -1/0/1/2, messages and
+    distances in [0, 1] (the first row all zeros, as at an episode's start). Seeded."""
+    rng = np.random.default_rng(0)
+    obs = rng.integers(-1, 3, size=(rows, obs_dim)).astype(np.float32)
+    obs[:, -2:] = rng.random((rows, 2))
+    obs[0] = 0.0
+    return torch.from_numpy(obs)
+
+
+def check_policy_outputs(
+    q_values: torch.Tensor | np.ndarray, messages: torch.Tensor | np.ndarray, name: str
+) -> None:
+    """ValueError naming ``name`` unless the Q-values are finite and the messages finite
+    numbers in [0, 1] (the sigmoid output the assignment asks for)."""
+    q_values, messages = np.asarray(q_values), np.asarray(messages)
+    if not np.isfinite(q_values).all():
+        raise ValueError(f"{name}: the model outputs non-finite Q-values (NaN or inf)")
+    if not (messages.min() >= 0.0 and messages.max() <= 1.0):  # False for NaN too
+        low, high = float(np.nanmin(messages)), float(np.nanmax(messages))
+        raise ValueError(
+            f"{name}: the model's message must be a sigmoid output in [0, 1], got values in "
+            f"[{low:.3g}, {high:.3g}]{' and NaN' if np.isnan(messages).any() else ''}"
+        )
+
+
+def check_policy(model: torch.nn.Module, name: str, obs_dim: int = OBSERVATION_DIM) -> None:
+    """Check that ``model`` maps observations [B, obs_dim] to (Q-values [B, 5], message
+    [B, 1] in [0, 1]), finite, on :func:`probe_observations`; errors name ``name``."""
+    probe = probe_observations(obs_dim)
     try:
         with torch.inference_mode():
-            q_values, message = model(torch.zeros(2, OBSERVATION_DIM))
-    except Exception as error:  # a TorchScript module with another signature
+            q_values, message = model(probe)
+    except Exception as error:  # a module with another signature
         raise ValueError(
-            f"{path}: the model does not accept observations [B, 11]: {error}"
+            f"{name}: the model does not accept observations [B, {obs_dim}]: {error}"
         ) from error
-    if tuple(q_values.shape) != (2, NUM_ACTIONS) or tuple(message.shape) != (2, 1):
+    if tuple(q_values.shape) != (len(probe), NUM_ACTIONS) or tuple(message.shape) != (
+        len(probe),
+        1,
+    ):
         raise ValueError(
-            f"{path}: expected outputs (Q-values [B, 5], message [B, 1]), got "
+            f"{name}: expected outputs (Q-values [B, 5], message [B, 1]), got "
             f"{tuple(q_values.shape)} and {tuple(message.shape)}"
         )
+    check_policy_outputs(q_values, message, name)
+
+
+def load_checked_policy(path: Path) -> torch.jit.ScriptModule:
+    """Load one exported policy and :func:`check_policy` it; errors name the file."""
+    model = load_policy(path)  # FileNotFoundError / ValueError naming the file
+    check_policy(model, str(path))
     return model
 
 
@@ -147,13 +303,24 @@ def load_model_pair(
 
 
 def best_seed(experiment: Experiment, mode: str) -> int | None:
-    """The seed whose files the best pair of ``mode`` copies (None if no seed matches)."""
+    """The seed of the best pair of ``mode``: from the manifest, else the seed whose files
+    the best pair copies (None if there is no best pair). A best pair that matches no seed
+    file is an error naming it (damaged or from another run)."""
+    if mode in experiment.best:
+        return experiment.best[mode]
     best_A, best_B = model_paths(experiment.models_dir, mode)
-    if not (best_A.is_file() and best_B.is_file()):
+    if not (best_A.is_file() or best_B.is_file()):
         return None
+    for path in (best_A, best_B):
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: missing (its partner file exists)")
     content = best_A.read_bytes(), best_B.read_bytes()
     for seed in experiment.seeds.get(mode, []):
         path_A, path_B = model_paths(experiment.models_dir, mode, seed)
         if (path_A.read_bytes(), path_B.read_bytes()) == content:
             return seed
-    return None
+    load_checked_policy(best_A), load_checked_policy(best_B)  # a damaged file is named here
+    raise ValueError(
+        f"{best_A} / {best_B}: the best {mode} pair matches no {mode}_seed<seed> pair of "
+        f"{experiment.models_dir} (replaced or left from another run)"
+    )

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from analysis_episodes import FAILURE_KINDS, classify_failures
+from analysis_failures import FAILURE_KINDS, classify_failures
 from rollout import EpisodeResults
 
 

@@ -3,8 +3,11 @@
 * :func:`random_policy`: uniform random actions and messages.
 * :func:`oracle_policy`: full information; each agent follows a shortest path to the
   target (breadth-first distances) and the first to arrive waits there.
+* :func:`explorer_policy`: memoryless, from the agent's own patch only: on the target, stay;
+  target in sight, step towards it; otherwise a random unblocked move. With
+  ``sweep=True`` the agent keeps its direction until blocked (one heading of state).
 
-``python baselines.py`` evaluates both on the default map (seed 641) and map seeds 0–4,
+``python baselines.py`` evaluates them on the default map (seed 641) and map seeds 0–4,
 prints a table and writes ``results/evaluation_results/baselines.json``.
 """
 
@@ -16,7 +19,15 @@ from pathlib import Path
 
 import numpy as np
 from _atomic import write_json_atomic
-from grid_maps import ACTION_DELTAS, DEFAULT_MAP_SEED, OBSTACLE, generate_map, target_distances
+from grid_maps import (
+    ACTION_DELTAS,
+    DEFAULT_MAP_SEED,
+    FREE,
+    OBSTACLE,
+    TARGET,
+    generate_map,
+    target_distances,
+)
 from multi_agent_env import REWARD_MODES, VectorMultiAgentEnv
 from rollout import EVAL_SEED, PolicyFn, evaluate_policy
 
@@ -60,6 +71,55 @@ def oracle_policy(grid: np.ndarray) -> PolicyFn:
     return act
 
 
+STAY = len(ACTION_DELTAS) - 1
+
+
+def explorer_policy(seed: int | None = None, sweep: bool = False, obs_window: int = 3) -> PolicyFn:
+    """Memoryless explorer on each agent's own patch (observation elements 0 .. w² − 1):
+    Stay on the target; with the target in sight, step towards it (vertically first when
+    that cell is open); otherwise a uniformly random move among the unblocked ones. With
+    ``sweep``, keep the current heading while it is unblocked (a new random one when
+    blocked). Sends the message 0."""
+    rng = np.random.default_rng(seed)
+    w = obs_window
+    centre = w * w // 2
+    neighbours = np.array([centre - w, centre + w, centre - 1, centre + 1])  # Up Down Left Right
+    offsets = np.stack(np.divmod(np.arange(w * w), w), axis=-1) - w // 2  # (w², 2)
+    heading: np.ndarray | None = None
+
+    def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        nonlocal heading
+        patch = obs[..., : w * w]  # (N, 2, w²)
+        around = patch[..., neighbours]  # (N, 2, 4)
+        open_moves = (around == FREE) | (around == TARGET)
+        random_move = np.argmax(rng.random(around.shape) + open_moves, axis=-1)  # (N, 2)
+        move = random_move
+        if sweep:
+            if heading is None or heading.shape != random_move.shape:
+                heading = random_move
+            still_open = np.take_along_axis(open_moves, heading[..., None], axis=-1)[..., 0]
+            heading = move = np.where(still_open, heading, random_move)
+        seen = patch == TARGET
+        visible = seen.any(axis=-1)
+        d_row, d_col = np.moveaxis(offsets[np.argmax(seen, axis=-1)], -1, 0)  # (N, 2) each
+        vertical, horizontal = np.where(d_row < 0, 0, 1), np.where(d_col < 0, 2, 3)
+        vertical_open = np.take_along_axis(open_moves, vertical[..., None], axis=-1)[..., 0]
+        toward = np.where((d_row != 0) & (vertical_open | (d_col == 0)), vertical, horizontal)
+        toward = np.where((d_row == 0) & (d_col == 0), STAY, toward)
+        actions = np.where(visible, toward, move)
+        return actions, np.zeros(actions.shape)
+
+    return act
+
+
+POLICIES = {
+    "random": lambda grid, seed: random_policy(seed),
+    "oracle": lambda grid, seed: oracle_policy(grid),
+    "explorer": lambda grid, seed: explorer_policy(seed),
+    "sweep_explorer": lambda grid, seed: explorer_policy(seed, sweep=True),
+}
+
+
 def evaluate_baselines(
     num_episodes: int = 1000, map_seeds: tuple[int, ...] = MAP_SEEDS, seed: int = EVAL_SEED
 ) -> dict:
@@ -69,10 +129,8 @@ def evaluate_baselines(
     for map_seed in map_seeds:
         grid = generate_map((10, 10), map_seed)
         entry: dict = {"grid": grid.tolist()}
-        for name, make_policy in (
-            ("random", partial(random_policy, seed)),
-            ("oracle", partial(oracle_policy, grid)),
-        ):
+        for name, factory in POLICIES.items():
+            make_policy = partial(factory, grid, seed)
             for mode in REWARD_MODES:
                 env = VectorMultiAgentEnv(min(num_episodes, 1000), grid=grid, reward_mode=mode)
                 summary = evaluate_policy(env, make_policy(), num_episodes, seed)
@@ -92,29 +150,53 @@ def evaluate_baselines(
 
 def format_table(results: dict) -> str:
     header = (
-        f"{'map seed':>8} {'target':>8} {'policy':>7} {'success':>8} {'steps':>6} "
+        f"{'map seed':>8} {'target':>8} {'policy':>14} {'success':>8} {'steps':>6} "
         f"{'return (arrival)':>17} {'return (per_step)':>18}"
     )
     lines = [header, "-" * len(header)]
     for map_seed, entry in results["maps"].items():
-        for name in ("random", "oracle"):
+        for name in POLICIES:
             row = entry[name]
             steps = row["mean_steps_to_success"]
             lines.append(
-                f"{map_seed:>8} {str(tuple(entry['target'])):>8} {name:>7} "
+                f"{map_seed:>8} {str(tuple(entry['target'])):>8} {name:>14} "
                 f"{row['success_rate']:>8.1%} {'-' if steps is None else f'{steps:.2f}':>6} "
                 f"{row['mean_return_arrival']:>17.2f} {row['mean_return_per_step']:>18.2f}"
             )
     return "\n".join(lines)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--episodes", type=int, default=1000)
-    parser.add_argument("--seed", type=int, default=EVAL_SEED)
-    parser.add_argument("--output", type=Path, default=RESULTS_DIR / "baselines.json")
-    args = parser.parse_args()
-    results = evaluate_baselines(args.episodes, seed=args.seed)
+def int_list(text: str) -> list[int]:
+    """``"0,1"`` -> [0, 1] (argparse type; with nargs="+" both ``0,1`` and ``0 1`` work)."""
+    try:
+        return [int(part) for part in text.split(",") if part.strip()]
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"expected integers, got {text!r}") from error
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog="Relative paths are resolved against the current folder.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--episodes", type=int, default=1000, help="test episodes per map")
+    parser.add_argument("--seed", type=int, default=EVAL_SEED, help="seed of the start cells")
+    parser.add_argument("--map_seeds", "--map-seeds", type=int_list, nargs="+",
+                        default=",".join(map(str, MAP_SEEDS)),
+                        help="map seeds, as 641,0,1 or 641 0 1")  # fmt: skip
+    parser.add_argument("--output", type=Path, default=RESULTS_DIR / "baselines.json",
+                        help="JSON file written")  # fmt: skip
+    args = parser.parse_args(argv)
+    parts = args.map_seeds  # a list of lists from the command line, one list by default
+    map_seeds = tuple(s for part in parts for s in (part if isinstance(part, list) else [part]))
+    if not 1 <= args.episodes <= 100_000:
+        parser.error(f"--episodes must be an integer in 1..100000, got {args.episodes}")
+    if not map_seeds or min(map_seeds) < 0 or len(set(map_seeds)) != len(map_seeds):
+        parser.error(f"--map_seeds must be distinct non-negative integers, got {map_seeds}")
+    if args.seed < 0:
+        parser.error(f"--seed must be a non-negative integer, got {args.seed}")
+    results = evaluate_baselines(args.episodes, map_seeds, seed=args.seed)
     print(format_table(results))
     write_json_atomic(args.output, results)
     print(f"wrote {args.output}")

@@ -1,106 +1,155 @@
-"""Evaluate Problem 2's trained agents: honest success rates, what the message means, how
-the agents fail, other maps, and pictures.
+"""Evaluate Problem 2's trained agents: the reported success rates, what each input channel
+carries and what the agents use of it, how the agents fail, other maps, and pictures.
 
-    python evaluate.py                               # every mode and seed found, all studies
+    python evaluate.py                               # every mode and seed, all studies
     python evaluate.py --checkpoint results/agent_models --num_episodes 1000 --epsilon 0.05
+    python evaluate.py --checkpoint my_run           # a train.py --output_dir folder
     python evaluate.py --render                      # also print one episode step by step
 
-Models are loaded as TorchScript files only (``torch.jit.load``), never through the
-training code, so models exported elsewhere are evaluated the same way. Every policy runs
-on the vectorised environment, all test episodes of a model in one batch, with fixed start
-cells (seed 7 000 000, as the trainer's final evaluation), greedy (ε = 0) and ε-greedy with
-a seeded exploration stream.
+The success rates reported anywhere come from here: fixed test episodes (start cells from
+``rollout.EVAL_SEED``), greedy (ε = 0) and ε-greedy with exploration draws fixed per episode
+and step. (Training picks checkpoints on other, validation episodes: that is "selection",
+``training_logs/<run>_selection.json``, and is never reported as a result.) Models load
+with ``torch.jit.load`` only; where the folder has a batch ``manifest.json``, exactly its
+runs are evaluated and every file's sha256 is checked (else the files found are evaluated,
+with a note). A bad model (missing, damaged, unlisted, NaN Q-values, a message outside
+[0, 1]) stops the run before any output is written, naming the file (exit status 1).
 
 The course interface lives here: :func:`load_trained_models`, :class:`MultiAgentEvaluator`
 (``analysis_evaluator.py``) and :func:`create_evaluation_report` (``analysis_report.py``).
-The run of ``python evaluate.py`` is in ``analysis_pipeline.py``; it writes to
-``<checkpoint>/../evaluation_results/`` (``results/evaluation_results/`` by default):
-``performance.json``, ``comparison_table.md``, ``communication_analysis.json``,
-``failure_analysis.json``, ``generalization.json``, ``trajectories.png``,
-``comm_heatmap.png`` and ``episode_<mode>.gif``.
+The run of ``python evaluate.py``: ``analysis_pipeline.py`` evaluates (episodes through
+``rollout.run_episodes``), ``analysis_outputs.py`` writes ``evaluation_results/`` beside the
+agent_models folder (see that module for the list of files).
 """
 
 from __future__ import annotations
 
 import argparse
+import io
+import sys
 from pathlib import Path
 from typing import Any
 
 import torch
 from analysis_evaluator import MultiAgentEvaluator
-from analysis_pipeline import evaluate_all, write_outputs
+from analysis_outputs import write_outputs
+from analysis_pipeline import evaluate_all
 from analysis_report import create_evaluation_report, format_report
-from analysis_runs import DEFAULT_ROOT, discover_experiments, load_model_pair
+from analysis_runs import (
+    DEFAULT_ROOT,
+    MODES,
+    best_seed,
+    discover_experiments,
+    load_model_pair,
+    model_paths,
+    resolve_checkpoint,
+)
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON
 
 __all__ = ["MultiAgentEvaluator", "create_evaluation_report", "load_trained_models", "main"]
+DEFAULT_CHECKPOINT = DEFAULT_ROOT / "agent_models"
 
 
 def load_trained_models(
-    checkpoint_dir: str | Path = DEFAULT_ROOT / "agent_models",
+    checkpoint_dir: str | Path = "results/agent_models",
     mode: str = "full",
     seed: int | None = None,
 ) -> tuple[torch.jit.ScriptModule, torch.jit.ScriptModule]:
     """Load (model_A, model_B) of ``mode`` from ``checkpoint_dir``: the best pair
     ``<mode>_agent_{A,B}.pt``, or ``<mode>_seed<seed>_agent_{A,B}.pt`` if ``seed`` is given.
 
-    Raises FileNotFoundError (naming the directory or file) if one is missing and
-    ValueError (naming the file) if it is not a TorchScript policy of the right shape."""
-    return load_model_pair(Path(checkpoint_dir), mode, seed)
+    A relative ``checkpoint_dir`` is resolved against the current folder; the default
+    ``results/agent_models``, if absent there, means this package's results folder, so
+    ``load_trained_models()`` works from any folder. Raises FileNotFoundError (naming the
+    directory or file) if one is missing and ValueError (naming the file) if it is not a
+    TorchScript policy of the right shape with finite outputs."""
+    path = Path(checkpoint_dir)
+    if str(checkpoint_dir) == "results/agent_models" and not path.is_dir():
+        path = DEFAULT_CHECKPOINT
+    return load_model_pair(path, mode, seed)
+
+
+def make_console_safe() -> None:
+    """Replace characters the console cannot encode (e.g. 'ε' on cp1252) instead of failing."""
+    for stream in (sys.stdout, sys.stderr):
+        if isinstance(stream, io.TextIOWrapper):
+            stream.reconfigure(errors="replace")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+        description=__doc__.split("\n\n")[0],
+        epilog="Relative paths are resolved against the current folder.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     add = parser.add_argument
-    add("--checkpoint", "--checkpoint_dir", type=Path, default=DEFAULT_ROOT / "agent_models",
-        help="agent_models folder of the main experiment; studies are found beside it "
-             "under ../studies (default: results/agent_models)")  # fmt: skip
+    add("--checkpoint", "--checkpoint_dir", "--checkpoint-dir", type=Path,
+        default=DEFAULT_CHECKPOINT,
+        help="agent_models folder of the main experiment, or the run folder holding it "
+             "(relative to the current folder; the default is this package's "
+             "results/agent_models, from any folder). Studies are found beside it under "
+             "../studies. With a manifest.json exactly its runs are evaluated, every file "
+             "checked against it; without one, the model files found are")  # fmt: skip
     add("--num_episodes", "--num-episodes", type=int, default=1000,
-        help="test episodes per trained seed and condition (default 1000)")  # fmt: skip
+        help="test episodes per trained seed and condition")  # fmt: skip
     add("--epsilon", type=float, default=EVAL_EPSILON,
-        help="exploration rate of the ε-greedy condition (default 0.05)")  # fmt: skip
+        help="exploration rate of the ε-greedy condition")  # fmt: skip
     add("--render", action="store_true", help="first print one episode step by step")
-    add("--mode", default="full", choices=("independent", "comm", "full"),
-        help="mode whose best pair --render shows (default full)")  # fmt: skip
+    add("--mode", default="full", choices=MODES, help="mode whose best pair --render shows")
     add("--output_dir", "--output-dir", type=Path, default=None,
-        help="output folder (default: evaluation_results beside the checkpoint)")  # fmt: skip
+        help="output folder; None: evaluation_results beside the agent_models folder")  # fmt: skip
     add("--generalization_episodes", "--generalization-episodes", type=int, default=500,
-        help="test episodes per model and map, generalisation test (default 500)")  # fmt: skip
+        help="test episodes per model and map, generalisation test")  # fmt: skip
     args = parser.parse_args(argv)
-    if args.num_episodes < 1 or args.generalization_episodes < 1:
-        parser.error("episode counts must be positive")
+    for flag in ("num_episodes", "generalization_episodes"):
+        if not 1 <= getattr(args, flag) <= 5000:
+            parser.error(f"--{flag} must be an integer in 1..5000, got {getattr(args, flag)}")
     if not 0 <= args.epsilon <= 1:
         parser.error(f"--epsilon must lie in [0, 1], got {args.epsilon}")
+    try:
+        args.checkpoint, note = resolve_checkpoint(args.checkpoint)
+    except ValueError as error:
+        parser.error(str(error))
+    if note:
+        print(note)
     return args
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """Evaluate every experiment found from the checkpoint folder and write every output."""
+    """Evaluate every experiment found from the checkpoint folder and write every output.
+    A missing, damaged or unlisted model file ends the run (exit status 1) naming it,
+    before anything is written."""
+    make_console_safe()
     args = parse_args(argv)
     torch.set_num_threads(1)  # batches of ~1000 rows: one thread is fast and leaves cores free
-    checkpoint = args.checkpoint.resolve()
-    if not checkpoint.is_dir():
-        raise FileNotFoundError(f"checkpoint directory {checkpoint} does not exist")
-    experiments = discover_experiments(checkpoint)
-    if not experiments:
-        raise FileNotFoundError(
-            f"no trained models (<mode>_seed<seed>_agent_A.pt) in {checkpoint}; run train.py first"
-        )
-    if args.render:
-        main_experiment = experiments[0]
-        env = MultiAgentEnv(
-            grid=main_experiment.grid,
-            max_steps=int(main_experiment.settings["max_steps"]),
-            reward_mode=main_experiment.settings["reward_mode"],
-        )
-        models = load_trained_models(main_experiment.models_dir, args.mode)
-        print(f"one greedy episode of the best {args.mode} pair ({main_experiment.models_dir}):")
-        MultiAgentEvaluator(env, *models).run_episode(render=True)
-    results, outcomes = evaluate_all(experiments, args)
-    output_dir = args.output_dir or checkpoint.parent / "evaluation_results"
+    try:
+        experiments = discover_experiments(args.checkpoint)
+        if not experiments:
+            raise FileNotFoundError(f"no trained models in {args.checkpoint}; run train.py first")
+        for experiment in experiments:
+            if experiment.manifest is None:
+                print(f"note: no manifest.json in {experiment.models_dir}: evaluating the "
+                      "model files found there")  # fmt: skip
+            for mode, seeds in experiment.seeds.items():
+                for seed in seeds:
+                    load_model_pair(experiment.models_dir, mode, seed)
+                best_seed(experiment, mode)  # a damaged or foreign best pair is an error
+        if args.render:
+            main_experiment = experiments[0]
+            env = MultiAgentEnv(
+                grid=main_experiment.grid,
+                max_steps=int(main_experiment.settings["max_steps"]),
+                reward_mode=main_experiment.settings["reward_mode"],
+            )
+            models = load_trained_models(main_experiment.models_dir, args.mode)
+            names = tuple(str(p) for p in model_paths(main_experiment.models_dir, args.mode))
+            print(f"one greedy episode of the best {args.mode} pair ({names[0]}, {names[1]}):")
+            MultiAgentEvaluator(env, *models, names=names).run_episode(render=True)
+        results, outcomes = evaluate_all(experiments, args)
+    except (FileNotFoundError, ValueError) as error:
+        raise SystemExit(f"evaluate.py: error: {error}") from error
+    output_dir = args.output_dir or args.checkpoint.parent / "evaluation_results"
     write_outputs(results, outcomes, output_dir)
     print(format_report(results, brief=True))
     print(f"wrote {output_dir}")

@@ -45,6 +45,7 @@ def run_episodes(
     num_episodes: int,
     seed: int | None = None,
     record: bool = False,
+    start_positions: np.ndarray | None = None,
 ) -> EpisodeResults:
     """Run ``num_episodes`` episodes of ``policy_fn`` in rounds of ``env.n_envs``.
 
@@ -53,13 +54,17 @@ def run_episodes(
     episodes). Copies that finish are ignored for the rest of the round. The first round
     resets with ``seed``, later rounds continue its stream: results are reproducible.
     Success means both agents on the target within ``env.max_steps`` steps.
+    ``start_positions`` (n_envs, 2, 2) places the agents of the first round by hand
+    (instead of drawing from ``seed``).
     """
     if not env.auto_reset:
         raise ValueError("run_episodes needs an environment built with auto_reset=True")
     if num_episodes < 1:
         raise ValueError(f"num_episodes must be positive, got {num_episodes}")
     rounds = [
-        _run_round(env, policy_fn, seed if i == 0 else None, record)
+        _run_round(
+            env, policy_fn, seed if i == 0 else None, record, start_positions if i == 0 else None
+        )
         for i in range(math.ceil(num_episodes / env.n_envs))
     ]
     joined = {key: np.concatenate([r[key] for r in rounds])[:num_episodes] for key in rounds[0]}
@@ -68,10 +73,14 @@ def run_episodes(
 
 
 def _run_round(
-    env: VectorMultiAgentEnv, policy_fn: PolicyFn, seed: int | None, record: bool
+    env: VectorMultiAgentEnv,
+    policy_fn: PolicyFn,
+    seed: int | None,
+    record: bool,
+    start_positions: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     n, horizon = env.n_envs, env.max_steps
-    obs = env.reset(seed=seed)
+    obs = env.reset(seed=seed, positions=start_positions)
     active = np.ones(n, dtype=bool)
     result = {
         "returns": np.zeros(n),
@@ -118,6 +127,27 @@ def _record_step(
     for key, new in (("positions", info["positions"]), ("observations", info["final_obs"])):
         log[key][:, t + 1] = log[key][:, t]  # hold the last state after the episode ends
         log[key][rows, t + 1] = new[rows]
+
+
+def split_blocks(results: EpisodeResults, blocks: int) -> list[EpisodeResults]:
+    """Split ``results`` of ``blocks`` equal consecutive blocks of episodes into one
+    ``EpisodeResults`` per block."""
+
+    def part(array: np.ndarray) -> list[np.ndarray]:
+        return np.split(array, blocks)
+
+    fields = [part(results.returns), part(results.successes), part(results.lengths)]
+    trajectories = results.trajectories
+    split = {k: part(v) for k, v in trajectories.items()} if trajectories is not None else None
+    return [
+        EpisodeResults(
+            fields[0][k],
+            fields[1][k],
+            fields[2][k],
+            {key: v[k] for key, v in split.items()} if split is not None else None,
+        )  # fmt: skip
+        for k in range(blocks)
+    ]
 
 
 def summarize(results: EpisodeResults) -> dict[str, float | int | None]:

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from baselines import (
     MAP_SEEDS,
+    POLICIES,
     evaluate_baselines,
     format_table,
     main,
@@ -92,8 +93,9 @@ def test_baseline_script_writes_json(tmp_path: Path, monkeypatch, capsys) -> Non
     output = tmp_path / "evaluation_results" / "baselines.json"
     monkeypatch.setattr(sys, "argv", ["baselines.py", "--episodes", "30", "--output", str(output)])
     main()
-    results = json.loads(output.read_text())
+    results = json.loads(output.read_text(encoding="utf-8"))
     assert set(results["maps"]) == {str(seed) for seed in MAP_SEEDS}
+    assert set(results["maps"]["641"]) >= set(POLICIES)
     for entry in results["maps"].values():
         assert entry["oracle"]["success_rate"] == 1.0
         assert set(entry["random"]) >= {"success_rate", "mean_return_arrival"}
@@ -104,7 +106,8 @@ def test_baseline_script_writes_json(tmp_path: Path, monkeypatch, capsys) -> Non
 def test_table_lists_every_map_and_policy() -> None:
     results = evaluate_baselines(num_episodes=20, map_seeds=(641, 0))
     table = format_table(results).splitlines()
-    assert len(table) == 2 + 4
+    assert len(table) == 2 + 2 * len(POLICIES)
+    assert all(any(name in line for line in table) for name in POLICIES)
     assert results["maps"]["641"]["target"] == list(
         map(int, np.argwhere(generate_map((10, 10), 641) == 2)[0])
     )

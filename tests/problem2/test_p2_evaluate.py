@@ -1,5 +1,6 @@
 """Evaluation building blocks: baseline policies through the evaluator, bootstrap CIs,
-the message perturbations of the causal test, exploration and failure kinds."""
+the channel interventions, exploration, failure kinds and decomposition, information
+measures."""
 
 from __future__ import annotations
 
@@ -7,17 +8,22 @@ import json
 
 import numpy as np
 import pytest
-from analysis_episodes import (
-    FAILURE_KINDS,
-    classify_failures,
-    perturb_messages,
-    with_exploration,
+from analysis_failures import FAILURE_KINDS, classify_failures, failure_decomposition
+from analysis_information import causal_influence, mutual_information
+from analysis_interventions import (
+    INTERVENTIONS,
+    channel_verdict,
+    intervene,
+    intervention_table,
+    real_steps,
+    received_values,
+    stack_tables,
 )
 from analysis_stats import bootstrap_ci, interquartile_mean, seed_statistics
-from baselines import oracle_policy, random_policy
+from baselines import POLICIES, explorer_policy, oracle_policy, random_policy
 from evaluate import MultiAgentEvaluator
 from models import MESSAGE_INDEX
-from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv, generate_map
+from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
 from rollout import EpisodeResults, run_episodes
 
 from tests.conftest import PROBLEM2
@@ -86,73 +92,117 @@ def test_bootstrap_and_iqm_refuse_bad_input_and_handle_known_values() -> None:
     assert stats["n"] == 2 and stats["mean"] == 11.0 and stats["per_seed"] == [10.0, None, 12.0]
 
 
-def _recording_run(condition: str) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """(observation given to the wrapper, observation the policy got, running mask) per step."""
-    env = VectorMultiAgentEnv(64, seed=641)
-    seen: list = []
-    messages_rng = np.random.default_rng(0)
-    inner_random = random_policy(1)
+def _real_run(episodes: int = 200) -> tuple[MultiAgentEvaluator, EpisodeResults]:
+    """Random actions with distinct messages on map 641, recorded."""
+
+    def factory(grid: np.ndarray):
+        rng = np.random.default_rng(3)
+
+        def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return rng.integers(0, 5, (len(obs), 2)), rng.random((len(obs), 2))
+
+        return act
+
+    evaluator = MultiAgentEvaluator(MultiAgentEnv(seed=641), policy_factory=factory)
+    return evaluator, evaluator.run(episodes)
+
+
+@pytest.mark.parametrize("kind", [k for k in INTERVENTIONS if k != "real"])
+def test_intervention_tables_hold_what_their_name_says(kind: str) -> None:
+    _, real = _real_run()
+    received = received_values(real, MESSAGE_INDEX)  # (E, T, 2)
+    taken = real_steps(real)
+    table = intervention_table(kind, real, MESSAGE_INDEX, constant=0.37, seed=1)
+    assert table.shape == received.shape and np.isfinite(table).all()
+    if kind.startswith("constant"):
+        expected = {"constant_mean": 0.37, "constant_0": 0.0, "constant_1": 1.0}[kind]
+        assert np.all(table == np.float32(expected))
+    elif kind == "random_step":
+        pool = set(received[taken].ravel().tolist())
+        assert set(table.ravel().tolist()) <= pool
+    elif kind == "shuffled_time":
+        for e in range(len(table)):
+            length = real.lengths[e]
+            own = np.sort(received[e, :length], axis=0)
+            assert np.array_equal(np.sort(table[e, :length], axis=0), own)  # a permutation
+    else:  # same_step: another running episode's value at the same step
+        for t in (1, 5, 20):
+            running = np.flatnonzero(taken[:, t])
+            for e in range(len(table)):
+                donors = np.flatnonzero(np.all(received[running, t] == table[e, t], axis=-1))
+                assert donors.size and not np.array_equal(running[donors], [e])
+
+
+def test_intervention_changes_only_its_element_and_keeps_the_real_value_on_nan() -> None:
+    evaluator, real = _real_run(64)
+    env = VectorMultiAgentEnv(128, grid=evaluator.setting.grid)
+    table = intervention_table("constant_1", real, MESSAGE_INDEX)
+    stacked = stack_tables([None, table], 64, evaluator.setting)
+    seen: list[tuple[np.ndarray, np.ndarray]] = []
 
     def inner(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        seen[-1].append(obs.copy())
-        actions, _ = inner_random(obs, positions)
-        return actions, messages_rng.random((len(obs), 2))  # distinct messages
+        seen[-1] = (seen[-1], obs.copy())
+        return np.full((len(obs), 2), 4), np.zeros((len(obs), 2))
 
-    wrapped = perturb_messages(inner, env, condition, seed=4)
+    wrapped = intervene(inner, env, stacked, MESSAGE_INDEX)
 
     def outer(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        steps = env.steps
-        seen.append([obs.copy(), steps == steps.max()])
+        seen.append(obs.copy())
         return wrapped(obs, positions)
 
-    run_episodes(env, outer, 128, seed=5)
-    return [(given, received, running) for given, running, received in seen]
-
-
-def test_shuffled_message_changes_only_element_9_and_keeps_each_steps_multiset() -> None:
-    records = _recording_run("shuffled")
-    assert len(records) > 50  # two rounds
-    changed_any = False
-    for given, received, running in records:
+    run_episodes(env, outer, 128, seed=5, start_positions=np.tile(env.positions[:64], (2, 1, 1)))
+    for given, received in seen:
         others = np.delete(np.arange(given.shape[-1]), MESSAGE_INDEX)
         assert np.array_equal(given[..., others], received[..., others])
-        assert np.array_equal(given[~running], received[~running])
-        for agent in range(2):
-            before = given[running, agent, MESSAGE_INDEX]
-            after = received[running, agent, MESSAGE_INDEX]
-            assert np.array_equal(np.sort(before), np.sort(after))
-            if running.sum() > 1 and np.unique(before).size == before.size:
-                assert not np.any(before == after)  # always another episode's message
-                changed_any = True
-    assert changed_any
+        assert np.array_equal(given[:64], received[:64])
+        assert np.all(received[64:, :, MESSAGE_INDEX] == 1.0)
 
 
-def test_zeroed_message_changes_only_element_9() -> None:
-    for given, received, _ in _recording_run("zeroed"):
-        assert np.all(received[..., MESSAGE_INDEX] == 0)
-        others = np.delete(np.arange(given.shape[-1]), MESSAGE_INDEX)
-        assert np.array_equal(given[..., others], received[..., others])
+def test_unknown_intervention_is_refused() -> None:
+    _, real = _real_run(8)
+    with pytest.raises(ValueError, match="unknown intervention"):
+        intervention_table("reversed", real, MESSAGE_INDEX)
 
 
-def test_unknown_message_condition_is_refused() -> None:
-    with pytest.raises(ValueError, match="unknown message condition"):
-        perturb_messages(random_policy(0), VectorMultiAgentEnv(2, seed=0), "reversed")
+def test_channel_verdicts() -> None:
+    zero, hurt = {"mean": 0.0, "ci95": [-0.01, 0.01]}, {"mean": -0.2, "ci95": [-0.3, -0.1]}
+    assert channel_verdict({"same_step": hurt, "constant_0": hurt}) == "content"
+    assert channel_verdict({"same_step": zero, "random_step": hurt}) == "clock"
+    assert channel_verdict({"same_step": zero, "shuffled_time": hurt}) == "clock"
+    assert channel_verdict({"same_step": zero, "random_step": zero, "constant_1": hurt}) == (
+        "presence"
+    )
+    assert channel_verdict({"same_step": zero, "constant_mean": zero}) == "none"
 
 
-def test_exploration_is_seeded_and_zero_epsilon_keeps_the_policy() -> None:
-    grid = generate_map((10, 10), 641)
-    env = VectorMultiAgentEnv(100, grid=grid)
-    greedy = run_episodes(env, oracle_policy(grid), 100, seed=1)
-    unexplored = run_episodes(env, with_exploration(oracle_policy(grid), 0.0, 7), 100, seed=1)
-    assert np.array_equal(greedy.lengths, unexplored.lengths)
-    runs = [
-        run_episodes(env, with_exploration(oracle_policy(grid), 0.3, 7), 100, seed=1)
-        for _ in range(2)
-    ]
-    assert np.array_equal(runs[0].returns, runs[1].returns)
-    assert runs[0].lengths.mean() > greedy.lengths.mean()
-    with pytest.raises(ValueError, match="epsilon"):
-        with_exploration(oracle_policy(grid), 1.5)
+def test_exploration_uses_common_random_numbers_and_zero_epsilon_keeps_the_policy() -> None:
+    evaluator = MultiAgentEvaluator(MultiAgentEnv(seed=641), policy_factory=oracle_policy)
+    greedy, explored, again = evaluator.run_blocks(100, [0.0, 0.3, 0.3])
+    alone = evaluator.run(100, 0.0, record=False)
+    assert np.array_equal(greedy.lengths, alone.lengths) and greedy.successes.all()
+    assert np.array_equal(explored.lengths, again.lengths)  # same episode, same draws
+    assert explored.lengths.mean() > greedy.lengths.mean()
+    with pytest.raises(ValueError, match="epsilons"):
+        evaluator.run(10, 1.5)
+
+
+def test_explorers_succeed_sometimes_and_the_sweep_more_often() -> None:
+    rates = {}
+    for name in ("random", "explorer", "sweep_explorer"):
+        evaluator = MultiAgentEvaluator(
+            MultiAgentEnv(seed=0), policy_factory=lambda grid, n=name: POLICIES[n](grid, 1)
+        )
+        rates[name] = evaluator.run(1000, record=False).successes.mean()
+    assert rates["random"] < 0.05 < rates["explorer"] < rates["sweep_explorer"] < 0.9
+
+
+def test_explorer_steps_onto_a_visible_target_and_stays() -> None:
+    obs = np.zeros((3, 2, 11), dtype=np.float32)
+    obs[0, :, 1] = 2  # target above
+    obs[1, :, 4] = 2  # standing on it
+    obs[2, :, 8] = 2  # below right; the cell below is open: move down first
+    actions, messages = explorer_policy(0)(obs, np.zeros((3, 2, 2), dtype=np.int64))
+    assert actions.tolist() == [[0, 0], [4, 4], [1, 1]] and np.all(messages == 0)
 
 
 def _episodes(paths_a: list, paths_b: list, successes: list[bool]) -> EpisodeResults:
@@ -186,3 +236,38 @@ def test_failure_kinds_on_hand_built_episodes() -> None:
     names = [FAILURE_KINDS[k] if k >= 0 else "success" for k in kinds]
     expected = ["swapping", "parked", "looping", "other", "looping", "parked", "parked"]
     assert names == expected + ["success"]
+
+
+def test_failure_decomposition_on_hand_built_episodes() -> None:
+    target, horizon = (5, 5), 20
+    still = [(0, 0)] * (horizon + 1)
+    on_target = [target] * (horizon + 1)
+    left = [target] * 5 + [(5, 6)] * (horizon - 4)
+    results = _episodes(
+        [still, on_target, left, on_target],
+        [still, still, [(5, 6)] * 10 + [target] + [(5, 6)] * (horizon - 10), on_target],
+        [False, False, False, True],
+    )
+    shares = failure_decomposition(results, target)
+    assert shares["failed_episodes"] == 3
+    assert shares["navigation"] == pytest.approx(2 / 3) and shares["timing"] == pytest.approx(1 / 3)
+    assert shares["reached_and_left"] == pytest.approx(1 / 3)
+    # steps begun on the target: 20 (episode 2) + 5 + 1 (episode 3) + 40 (success); stays: 64
+    assert shares["steps_begun_on_target"] == 66
+    assert shares["stay_on_target_share"] == pytest.approx(64 / 66)
+
+
+def test_mutual_information_of_known_distributions() -> None:
+    x = np.repeat([0, 1], 500)
+    assert mutual_information(x, x) == pytest.approx(1.0)
+    assert mutual_information(x, np.tile([0, 1], 500)) == pytest.approx(0.0, abs=1e-12)
+    assert mutual_information(x, np.zeros(1000, dtype=int)) == 0.0
+
+
+def test_causal_influence_is_zero_for_a_receiver_that_ignores_the_message() -> None:
+    states = np.random.default_rng(0).random((50, 11)).astype(np.float32)
+    ignores = lambda obs: obs[:, :5]  # noqa: E731
+    assert causal_influence(ignores, states, 9, np.array([0.5, 0.5]), 0.05) == 0.0
+    follows = lambda obs: np.stack([obs[:, 9], 1 - obs[:, 9], *[0 * obs[:, 9]] * 3], 1)  # noqa: E731
+    # two equally likely messages, each picks another action: I = H(a) under ε = 0 -> 1 bit
+    assert causal_influence(follows, states, 9, np.array([0.5, 0.5]), 0.0) == pytest.approx(1.0)

@@ -1,19 +1,36 @@
-"""``python evaluate.py`` on tiny smoke-run models: every output file, agreement with the
-trainer's own final evaluation, study discovery and clear errors for bad model files."""
+"""``python evaluate.py`` on tiny smoke-run models: every output file, study discovery, the
+batch manifest, clear errors for bad model files and paths, a cp1252 console, and the
+course interface used as a grader would (defaults, plain networks)."""
 
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import baselines
+import evaluate as evaluate_module
 import numpy as np
 import pytest
-from analysis_runs import discover_experiments
-from evaluate import MultiAgentEvaluator, load_trained_models, main
-from multi_agent_env import MultiAgentEnv, load_map
+import torch
+from analysis_episodes import model_policy
+from analysis_information import MEASURES
+from analysis_interventions import INTERVENTIONS
+from analysis_runs import best_seed, discover_experiments, sha256_of
+from baselines import POLICIES
+from evaluate import (
+    MultiAgentEvaluator,
+    create_evaluation_report,
+    load_trained_models,
+    main,
+    parse_args,
+)
+from models import AgentDQN, DuelingDQN, export_policy
+from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv, load_map
+from rollout import EVAL_SEED, run_episodes
 
 from tests.conftest import PROBLEM2
 
@@ -27,6 +44,14 @@ OUTPUTS = [
     "performance.json",
     "comparison_table.md",
     "communication_analysis.json",
+    "interventions.json",
+    "interventions.csv",
+    "interventions.png",
+    "communication_measures.json",
+    "communication_measures.csv",
+    "failure_decomposition.csv",
+    "failure_decomposition.png",
+    "communication_measures.png",
     "failure_analysis.json",
     "generalization.json",
     "trajectories.png",
@@ -53,7 +78,7 @@ def tiny_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def evaluated(tiny_root: Path) -> tuple[dict, Path]:
     output = tiny_root / "evaluation_results"
-    argv = ["--checkpoint", str(tiny_root / "agent_models"), "--num_episodes", "200"]
+    argv = ["--checkpoint", str(tiny_root), "--num_episodes", "200"]  # the run folder itself
     return main(argv + ["--generalization_episodes", "40", "--render"]), output
 
 
@@ -92,16 +117,62 @@ def test_communication_analysis_has_causal_test_and_verdict(evaluated: tuple[dic
     generalization = json.loads((output / "generalization.json").read_text())
     assert list(generalization["maps"]) == [str(k) for k in range(10)]
     assert all(entry["oracle"]["success_rate"] == 1.0 for entry in generalization["maps"].values())
+    held_out = generalization["held_out"]
+    assert len(held_out["map_seeds"]) == 40 and set(held_out["success_rate"]) == set(POLICIES)
+    assert held_out["success_rate"]["oracle"]["mean"] == 1.0
 
 
-def test_evaluator_reproduces_the_trainers_final_greedy_evaluation(tiny_root: Path) -> None:
+def test_interventions_measures_and_decomposition_are_written(
+    evaluated: tuple[dict, Path],
+) -> None:
+    _, output = evaluated
+    interventions = json.loads((output / "interventions.json").read_text(encoding="utf-8"))
+    modes = interventions["experiments"]["main"]
+    assert set(modes) == {"comm", "full"} and set(modes["full"]) == {"message", "distance"}
+    message = modes["full"]["message"]["eps"]
+    assert set(message["delta_success"]) == set(INTERVENTIONS) - {"real"}
+    assert message["verdict"] in ("content", "clock", "presence", "none")
+    assert set(modes["full"]["distance"]["greedy"]["success"]) == {
+        "real", "same_step", "constant_mean"
+    }  # fmt: skip
+    measures = json.loads((output / "communication_measures.json").read_text(encoding="utf-8"))
+    independent = measures["experiments"]["main"]["independent"]["aggregate"]
+    for bins in ("K2", "K10"):
+        assert set(independent[bins]) == set(MEASURES)
+        assert independent[bins]["cic"]["A"]["mean"] == 0.0  # the message is masked
+    performance = json.loads((output / "performance.json").read_text(encoding="utf-8"))
+    decomposition = performance["experiments"]["main"]["modes"]["full"]["eps"][
+        "failure_decomposition"
+    ]
+    assert set(decomposition) == {
+        "navigation",
+        "timing",
+        "reached_and_left",
+        "stay_on_target_share",
+    }
+    rows = (output / "interventions.csv").read_text(encoding="utf-8").splitlines()
+    assert rows[0].startswith("experiment,mode,channel") and len(rows) > 20
+
+
+def test_no_output_holds_an_absolute_path(evaluated: tuple[dict, Path], tiny_root: Path) -> None:
+    _, output = evaluated
+    for path in output.glob("*.*"):
+        if path.suffix in (".json", ".csv", ".md"):
+            text = path.read_text(encoding="utf-8")
+            assert str(tiny_root) not in text and str(PROBLEM2) not in text, path.name
+            assert "NaN" not in text and "Infinity" not in text, path.name
+
+
+def test_evaluator_matches_the_episode_loop_for_a_loaded_pair(tiny_root: Path) -> None:
     models = tiny_root / "agent_models"
-    final = json.loads((tiny_root / "training_logs" / "full_seed641_final.json").read_text())
     env = MultiAgentEnv(grid=load_map(models / "map.json"))
-    evaluator = MultiAgentEvaluator(env, *load_trained_models(models, "full", seed=641))
-    results = evaluator.run(final["greedy"]["episodes"], epsilon=0.0)
-    assert results.successes.mean() == final["greedy"]["success_rate"]
-    assert results.returns.mean() == pytest.approx(final["greedy"]["mean_return"], rel=1e-6)
+    pair = load_trained_models(models, "full", seed=641)
+    results = MultiAgentEvaluator(env, *pair).run(300, epsilon=0.0)
+    direct = run_episodes(
+        VectorMultiAgentEnv(300, grid=env.grid), model_policy(*pair), 300, seed=EVAL_SEED
+    )
+    assert np.array_equal(results.successes, direct.successes)
+    assert np.array_equal(results.lengths, direct.lengths)
 
 
 def test_render_prints_the_episode_step_by_step(tiny_root: Path, capsys) -> None:
@@ -116,14 +187,15 @@ def test_render_prints_the_episode_step_by_step(tiny_root: Path, capsys) -> None
     assert isinstance(reward, float) and isinstance(success, bool)
 
 
-def test_message_shuffling_cannot_matter_to_independent_agents(tiny_root: Path) -> None:
+def test_interventions_cannot_matter_to_independent_agents(tiny_root: Path) -> None:
     models = tiny_root / "agent_models"
     env = MultiAgentEnv(grid=load_map(models / "map.json"))
     evaluator = MultiAgentEvaluator(env, *load_trained_models(models, "independent"))
-    real = evaluator.run(100, 0.05, record=False)
-    for condition in ("shuffled", "zeroed"):
-        changed = evaluator.run(100, 0.05, condition, record=False)
-        assert np.array_equal(real.returns, changed.returns)
+    tests = evaluator.intervention_test(100)
+    for channel in ("message", "distance"):
+        for condition in ("greedy", "eps"):
+            rates = tests[channel][condition]
+            assert len(set(rates.values())) == 1, rates  # every intervention as the real input
 
 
 def test_studies_are_discovered_with_their_labels(tiny_root: Path, tmp_path: Path) -> None:
@@ -143,16 +215,197 @@ def test_studies_are_discovered_with_their_labels(tiny_root: Path, tmp_path: Pat
     assert np.array_equal(experiments[2].grid, experiments[0].grid)  # defaults: map seed 641
 
 
+def _quick(models: Path, *extra: str) -> list[str]:
+    return ["--checkpoint", str(models), "--num_episodes", "10", "--generalization_episodes",
+            "5", "--output_dir", str(models.parent / "out"), *extra]  # fmt: skip
+
+
 def test_missing_or_corrupt_model_files_are_named(tiny_root: Path, tmp_path: Path) -> None:
     models = tmp_path / "agent_models"
     shutil.copytree(tiny_root / "agent_models", models)
     (models / "comm_seed642_agent_B.pt").unlink()
-    with pytest.raises(FileNotFoundError, match="comm_seed642_agent_B.pt"):
-        main(["--checkpoint", str(models), "--num_episodes", "10"])
-    (models / "full_agent_A.pt").write_bytes(b"not a model")
+    with pytest.raises(SystemExit, match="comm_seed642_agent_B.pt"):
+        main(_quick(models))
+    shutil.copy(tiny_root / "agent_models" / "comm_seed642_agent_B.pt", models)
+    (models / "full_agent_A.pt").write_bytes(os.urandom(2000))  # the best pair damaged
+    with pytest.raises(SystemExit, match="full_agent_A.pt"):
+        main(_quick(models))
     with pytest.raises(ValueError, match="full_agent_A.pt"):
         load_trained_models(models, "full")
     with pytest.raises(FileNotFoundError, match="does not exist"):
         load_trained_models(tmp_path / "nowhere")
-    with pytest.raises(FileNotFoundError, match="no trained models"):
-        main(["--checkpoint", str(tmp_path)])
+    assert not (tmp_path / "out").exists()  # refused before anything was written
+
+
+def test_bad_checkpoint_paths_are_usage_errors(tiny_root: Path, tmp_path: Path, capsys) -> None:
+    for path, message in (
+        (tiny_root / "agent_models" / "full_agent_A.pt", "is a file"),
+        (tmp_path / "nowhere", "no such folder"),
+        (tmp_path, "no trained models"),
+    ):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["--checkpoint", str(path)])
+        assert exit_info.value.code == 2
+        assert message in capsys.readouterr().err
+
+
+def test_checkpoint_is_relative_to_the_current_folder(
+    tiny_root: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tiny_root.parent)
+    args = parse_args(["--checkpoint", tiny_root.name])
+    assert args.checkpoint.resolve() == (tiny_root / "agent_models").resolve()
+
+
+def _export_bad(path: Path, kind: str) -> None:
+    network = AgentDQN()
+    with torch.no_grad():
+        if kind == "nan":
+            network.q_head.bias.fill_(float("nan"))
+        else:
+            network.message_head.bias.fill_(5.0)
+    if kind == "nan":
+        export_policy(network, "full", path)
+        return
+
+    class NoSigmoid(torch.nn.Module):  # returns the message logit itself
+        def __init__(self) -> None:
+            super().__init__()
+            self.network = network
+
+        def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            return self.network.forward_with_logit(obs)
+
+    torch.jit.save(torch.jit.script(NoSigmoid()), str(path))
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # torch.jit.script of the bad model
+@pytest.mark.parametrize(("kind", "message"), [("nan", "non-finite Q"), ("logit", "sigmoid")])
+def test_models_with_bad_outputs_are_named(
+    tiny_root: Path, tmp_path: Path, kind: str, message: str
+) -> None:
+    models = tmp_path / "agent_models"
+    shutil.copytree(tiny_root / "agent_models", models)
+    _export_bad(models / "comm_seed641_agent_B.pt", kind)
+    with pytest.raises(SystemExit, match=f"comm_seed641_agent_B.pt.*{message}"):
+        main(_quick(models))
+    result = subprocess.run(
+        [sys.executable, "evaluate.py", *_quick(models)], cwd=PROBLEM2, capture_output=True,
+        text=True,
+    )  # fmt: skip
+    assert result.returncode != 0 and "comm_seed641_agent_B.pt" in result.stderr
+
+
+def _write_manifest(models: Path) -> dict:
+    runs = {}
+    for path in sorted(models.glob("*_seed*_agent_A.pt")):
+        mode, seed = path.name.split("_seed")[0], int(path.name.split("_seed")[1].split("_")[0])
+        name = f"{mode}_seed{seed}"
+        files = {agent: f"{name}_agent_{agent}.pt" for agent in "AB"}
+        runs[name] = {
+            "mode": mode, "seed": seed, "models": files,
+            "sha256": {a: sha256_of(models / f) for a, f in files.items()},
+            "selection": {"greedy": 0.0, "eps": 0.0, "score": 0.0},
+        }  # fmt: skip
+    best = {}
+    for mode in ("independent", "comm", "full"):
+        content = (models / f"{mode}_agent_A.pt").read_bytes()
+        best[mode] = next(
+            n for n, r in runs.items() if r["mode"] == mode
+            and (models / r["models"]["A"]).read_bytes() == content
+        )  # fmt: skip
+    manifest = {"format": 1, "modes": ["independent", "comm", "full"], "seeds": [641, 642],
+                "map_seed": 641, "reward_mode": "arrival",
+                "hyperparameters": {"max_steps": 50, "grid_size": 10, "map_seed": 641},
+                "code_version": "0" * 64, "runs": runs, "best": best}  # fmt: skip
+    (models / "manifest.json").write_text(json.dumps(manifest), encoding="utf-8")
+    return manifest
+
+
+def test_manifest_runs_are_evaluated_and_foreign_or_changed_files_refused(
+    tiny_root: Path, tmp_path: Path
+) -> None:
+    models = tmp_path / "agent_models"
+    shutil.copytree(tiny_root / "agent_models", models)
+    manifest = _write_manifest(models)
+    (experiment,) = discover_experiments(models)
+    assert experiment.manifest == manifest and experiment.seeds["full"] == [641, 642]
+    del manifest["runs"]["full_seed642"]  # a manifest listing one full seed only
+    manifest["runs"]["full_seed641"]["sha256"]["A"] = sha256_of(models / "full_seed641_agent_A.pt")
+    manifest["best"]["full"] = "full_seed641"
+    (models / "manifest.json").write_text(json.dumps(manifest), encoding="utf-8")
+    with pytest.raises(ValueError, match="not listed in manifest.json.*full_seed642_agent_A.pt"):
+        discover_experiments(models)
+    for agent in "AB":
+        (models / f"full_seed642_agent_{agent}.pt").unlink()
+        shutil.copy(models / f"full_seed641_agent_{agent}.pt", models / f"full_agent_{agent}.pt")
+    (experiment,) = discover_experiments(models)
+    assert experiment.seeds["full"] == [641] and best_seed(experiment, "full") == 641
+    shutil.copy(models / "comm_seed641_agent_A.pt", models / "comm_seed642_agent_A.pt")
+    with pytest.raises(ValueError, match="comm_seed642_agent_A.pt: damaged or replaced"):
+        discover_experiments(models)
+
+
+def test_without_manifest_the_files_found_are_evaluated_with_a_note(
+    tiny_root: Path, capsys
+) -> None:
+    main(_quick(tiny_root / "agent_models"))
+    assert "no manifest.json" in capsys.readouterr().out
+
+
+def test_cli_survives_a_cp1252_console(tiny_root: Path, tmp_path: Path) -> None:
+    result = subprocess.run(
+        [sys.executable, "evaluate.py", *_quick(tiny_root / "agent_models", "--render")],
+        cwd=PROBLEM2, capture_output=True, env=os.environ | {"PYTHONIOENCODING": "cp1252"},
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr.decode("cp1252", "replace")
+    assert b"success greedy" in result.stdout
+    result = subprocess.run(
+        [sys.executable, "baselines.py", "--episodes", "20", "--map_seeds", "0",
+         "--output", str(tmp_path / "b.json")],
+        cwd=PROBLEM2, capture_output=True, env=os.environ | {"PYTHONIOENCODING": "cp1252"},
+    )  # fmt: skip
+    assert result.returncode == 0
+
+
+def test_course_interface_as_a_grader_uses_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    model_A, model_B = load_trained_models()  # the committed best full pair, from any folder
+    env = MultiAgentEnv(seed=641)
+    for pair in ((model_A, model_B), (AgentDQN(), DuelingDQN())):  # TorchScript and plain
+        evaluator = MultiAgentEvaluator(env, *pair)
+        performance = evaluator.evaluate_performance(num_episodes=50)
+        assert 0.0 <= performance["success_rate"] <= 1.0
+    assert evaluator.visualize_trajectory(num_episodes=20) == Path("results/trajectory.png")
+    assert evaluator.plot_communication_heatmap(num_episodes=20) == Path("results/comm_heatmap.png")
+    assert (tmp_path / "results" / "trajectory.png").stat().st_size > 0
+    assert (tmp_path / "results" / "comm_heatmap.png").stat().st_size > 0
+    report = {"success": performance["success_rate"], "modes": ["full"], "nested": {"a": [1, 2]}}
+    create_evaluation_report(report)
+    written = tmp_path / "results" / "evaluation_report.json"
+    assert json.loads(written.read_text(encoding="utf-8")) == report
+    broken = AgentDQN()
+    with torch.no_grad():
+        broken.hidden.weight.fill_(float("nan"))
+    with pytest.raises(ValueError, match="model_B.*non-finite"):
+        MultiAgentEvaluator(env, AgentDQN(), broken)
+
+
+def test_help_states_defaults_and_the_path_rule(capsys) -> None:
+    for module in (evaluate_module, baselines):
+        with pytest.raises(SystemExit) as exit_info:
+            module.main(["--help"])
+        assert exit_info.value.code == 0
+        text = capsys.readouterr().out
+        assert "default:" in text and "current folder" in text
+
+
+def test_baselines_take_both_list_forms(tmp_path: Path) -> None:
+    for form in (["0,1"], ["0", "1"]):
+        output = tmp_path / f"{len(form)}.json"
+        baselines.main(["--episodes", "20", "--map_seeds", *form, "--output", str(output)])
+        assert list(json.loads(output.read_text(encoding="utf-8"))["maps"]) == ["0", "1"]
+    with pytest.raises(SystemExit):
+        baselines.main(["--map_seeds", "0,x"])

@@ -1,0 +1,213 @@
+"""Writing what ``python evaluate.py`` measured: the JSON files (every number), the CSV tables
+and the figures, all into one output folder (``results/evaluation_results/`` by default).
+
+Files: ``performance.json``, ``communication_analysis.json``, ``failure_analysis.json``,
+``generalization.json``, ``interventions.json`` / ``.csv`` / ``.png``,
+``communication_measures.json`` / ``.csv`` / ``.png``, ``failure_decomposition.csv`` /
+``.png`` (its numbers are in ``performance.json`` and ``failure_analysis.json``),
+``comparison_table.md``, ``trajectories.png``, ``comm_heatmap.png``, ``episode_<mode>.gif``.
+JSON is written as UTF-8 without NaN or Infinity (a non-finite number is an error).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from _atomic import temporary_path_for
+from analysis_messages import mean_message_per_cell
+from analysis_plots import (
+    plot_failure_decomposition,
+    plot_interventions,
+    plot_measures,
+    plot_message_heatmap,
+    plot_trajectories,
+    save_episode_gif,
+)
+from analysis_report import format_report
+from analysis_traces import representative_traces
+
+CONDITIONS = ("greedy", "eps")
+
+
+def write_json(path: str | Path, data: Any) -> Path:
+    """Write ``data`` as indented UTF-8 JSON (final newline) to ``path`` atomically;
+    ValueError for NaN or Infinity (they are not JSON)."""
+    text = json.dumps(data, indent=2, allow_nan=False) + "\n"
+    with temporary_path_for(path) as temporary:
+        temporary.write_text(text, encoding="utf-8")
+    return Path(path)
+
+
+def write_csv(path: str | Path, header: list[str], rows: list[list]) -> Path:
+    """Write a CSV table (UTF-8, ``\\n`` line ends, floats to 6 decimals; the JSON files
+    hold them unrounded) atomically."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(header)
+    writer.writerows([[round(v, 6) if isinstance(v, float) else v for v in row] for row in rows])
+    with temporary_path_for(path) as temporary:
+        temporary.write_text(buffer.getvalue(), encoding="utf-8")
+    return Path(path)
+
+
+def _ci(stat: dict) -> list:
+    low, high = stat["ci95"] if stat.get("ci95") else (None, None)
+    return [stat.get("mean"), low, high, stat.get("n")]
+
+
+def failure_analysis(performance: dict) -> dict[str, Any]:
+    """The failure kinds and the failure decomposition of every experiment and mode."""
+    protocol = performance["protocol"]
+    return {
+        "definitions": protocol["failure_definitions"],
+        "decomposition_definitions": protocol["failure_decomposition"],
+        "experiments": {
+            name: {
+                mode: {c: entry[c]["failures"] for c in CONDITIONS}
+                | {"decomposition": {c: entry[c]["failure_decomposition"] for c in CONDITIONS}}
+                | {"baselines": {b: v["failures"] for b, v in experiment["baselines"].items()}}
+                for mode, entry in experiment["modes"].items()
+            }
+            for name, experiment in performance["experiments"].items()
+        },
+    }
+
+
+def split_communication(communication: dict) -> tuple[dict, dict, dict]:
+    """(communication analysis without the two parts below, interventions, measures)."""
+    protocol = communication["protocol"]
+    analysis = {"protocol": protocol, "experiments": {}}
+    interventions = {
+        "protocol": {
+            k: protocol[k]
+            for k in ("evaluation_seed", "episodes_per_seed", "conditions", "confidence")
+        }
+        | {k: protocol[k] for k in ("interventions", "channel_interventions", "verdicts")},
+        "experiments": {},
+    }
+    measures = {
+        "protocol": {k: protocol[k] for k in ("evaluation_seed", "episodes_per_seed")}
+        | {"measures": protocol["measures"], "condition": "greedy"},
+        "experiments": {},
+    }
+    for name, experiment in communication["experiments"].items():
+        analysis["experiments"][name] = {**experiment, "modes": {}}
+        interventions["experiments"][name], measures["experiments"][name] = {}, {}
+        for mode, entry in experiment["modes"].items():
+            rest = {k: v for k, v in entry.items() if k not in ("interventions", "measures")}
+            rest["per_seed"] = {
+                seed: {k: v for k, v in values.items() if k != "measures"}
+                for seed, values in entry["per_seed"].items()
+            }
+            analysis["experiments"][name]["modes"][mode] = rest
+            if "interventions" in entry:
+                interventions["experiments"][name][mode] = entry["interventions"]
+            measures["experiments"][name][mode] = {
+                "aggregate": entry["measures"],
+                "per_seed": {s: v["measures"] for s, v in entry["per_seed"].items()},
+            }
+    return analysis, interventions, measures
+
+
+def intervention_rows(interventions: dict) -> list[list]:
+    rows = []
+    for name, modes in interventions["experiments"].items():
+        for mode, channels in modes.items():
+            for channel, entry in channels.items():
+                for condition in CONDITIONS:
+                    test = entry[condition]
+                    for kind, success in test["success"].items():
+                        delta = test["delta_success"].get(kind)
+                        delta_cells = _ci(delta)[:3] if delta else [0.0, 0.0, 0.0]
+                        rows.append(
+                            [name, mode, channel, condition, kind, *_ci(success), *delta_cells]
+                            + [test["verdict"]]
+                        )
+    return rows
+
+
+INTERVENTION_HEADER = [
+    "experiment", "mode", "channel", "condition", "intervention", "success_mean",
+    "success_ci95_low", "success_ci95_high", "seeds", "delta_success_mean",
+    "delta_success_ci95_low", "delta_success_ci95_high", "verdict",
+]  # fmt: skip
+
+
+def measure_rows(measures: dict) -> list[list]:
+    rows = []
+    for name, modes in measures["experiments"].items():
+        for mode, entry in modes.items():
+            for bins, values in entry["aggregate"].items():
+                for measure, senders in values.items():
+                    for sender, stat in senders.items():
+                        rows.append([name, mode, bins, measure, sender, *_ci(stat)])
+    return rows
+
+
+def decomposition_rows(performance: dict) -> list[list]:
+    rows = []
+    for name, experiment in performance["experiments"].items():
+        for mode, entry in experiment["modes"].items():
+            for condition in CONDITIONS:
+                failed = entry[condition]["success_rate"]["mean"]
+                for key, stat in entry[condition]["failure_decomposition"].items():
+                    rows.append([name, mode, condition, 1 - failed, key, *_ci(stat)])
+    return rows
+
+
+def write_outputs(results: dict[str, Any], outcomes: dict, output_dir: Path) -> list[Path]:
+    """Write every file of the module docstring to ``output_dir``; the figures show the
+    main experiment (or the first one evaluated). Returns the paths written."""
+    output_dir = Path(output_dir)
+    performance = results["performance"]
+    analysis, interventions, measures = split_communication(results["communication"])
+    written = [
+        write_json(output_dir / "performance.json", performance),
+        write_json(output_dir / "communication_analysis.json", analysis),
+        write_json(output_dir / "failure_analysis.json", failure_analysis(performance)),
+        write_json(output_dir / "interventions.json", interventions),
+        write_json(output_dir / "communication_measures.json", measures),
+        write_csv(output_dir / "interventions.csv", INTERVENTION_HEADER,
+                  intervention_rows(interventions)),
+        write_csv(output_dir / "communication_measures.csv",
+                  ["experiment", "mode", "bins", "measure", "sender", "mean", "ci95_low",
+                   "ci95_high", "seeds"], measure_rows(measures)),
+        write_csv(output_dir / "failure_decomposition.csv",
+                  ["experiment", "mode", "condition", "failed_share", "quantity", "mean",
+                   "ci95_low", "ci95_high", "seeds"], decomposition_rows(performance)),
+    ]  # fmt: skip
+    if "generalization" in results:
+        written.append(write_json(output_dir / "generalization.json", results["generalization"]))
+    with temporary_path_for(output_dir / "comparison_table.md") as temporary:
+        temporary.write_text(format_report(results), encoding="utf-8")
+    written.append(output_dir / "comparison_table.md")
+    name, outcome = next(iter(outcomes.items()))
+    entry = performance["experiments"][name]
+    grid, target = np.array(entry["grid"]), tuple(entry["target"])
+    rows, heat = [], []
+    for mode, runs in outcome.runs.items():
+        label = f"{mode} (seed {entry['modes'][mode]['best_seed']})"
+        traces = representative_traces(runs, target)
+        rows.append((label, traces))
+        heat.append((label, mean_message_per_cell(runs["greedy"], grid.shape)))
+        shown = traces[0] or traces[1]
+        if shown is not None:
+            title = f"{mode}: {'success' if shown.success else 'failure'}"
+            written.append(save_episode_gif(shown, grid, output_dir / f"episode_{mode}.gif", title))
+    written.append(plot_trajectories(rows, grid, output_dir / "trajectories.png"))
+    written.append(plot_message_heatmap(heat, grid, output_dir / "comm_heatmap.png"))
+    main_measures = {m: v["aggregate"] for m, v in measures["experiments"][name].items()}
+    written.append(plot_measures(main_measures, "K2", output_dir / "communication_measures.png"))
+    written.append(
+        plot_failure_decomposition(entry["modes"], output_dir / "failure_decomposition.png")
+    )
+    if interventions["experiments"].get(name):
+        written.append(
+            plot_interventions(interventions["experiments"][name], output_dir / "interventions.png")
+        )
+    return written
