@@ -21,18 +21,17 @@ Writes ``reward_study.json`` and ``reward_study.png`` into ``--output_dir``.
 from __future__ import annotations
 
 import argparse
-import json
-from dataclasses import replace
 from pathlib import Path
 
 import joint_dp
 import numpy as np
 import torch
 from _atomic import write_json_atomic
-from analysis_episodes import EvaluationSetting, evaluate_models
+from analysis_evaluator import MultiAgentEvaluator
 from analysis_runs import Experiment, load_model_pair, read_experiment
 from analysis_stats import seed_statistics
 from grid_maps import DEFAULT_MAP_SEED, TARGET, generate_map, target_distances
+from multi_agent_env import VectorMultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED
 
 STUDY_DIR = Path(__file__).resolve().parent / "results" / "studies" / "reward"
@@ -164,29 +163,13 @@ def shaping_check(grid: np.ndarray, gamma: float, horizon: int) -> dict:
     }
 
 
-def with_manifest(experiment: Experiment) -> Experiment:
-    """``experiment`` with the settings and runs of its batch manifest, if it has one
-    (``agent_models/manifest.json``: the runs it lists, not every file in the folder)."""
-    path = experiment.models_dir / "manifest.json"
-    if not path.is_file():
-        return experiment
-    manifest = json.loads(path.read_text(encoding="utf-8"))
-    settings = experiment.settings | manifest.get("hyperparameters", {})
-    settings["reward_mode"] = manifest["reward_mode"]
-    seeds = {
-        mode: sorted(run["seed"] for run in manifest["runs"].values() if run["mode"] == mode)
-        for mode in MODES
-    }
-    return replace(experiment, settings=settings, seeds={m: s for m, s in seeds.items() if s})
-
-
 def open_batch(models_dir: Path, reward: str, grid: np.ndarray, horizon: int) -> Experiment:
-    """The trained batch in ``models_dir``, checked: trained on ``reward``, on ``grid``,
+    """The trained batch in ``models_dir`` (its manifest's runs and settings, every model
+    file checked, see ``analysis_runs.read_experiment``), trained on ``reward``, on ``grid``,
     with episodes of ``horizon`` steps (errors name the folder)."""
     experiment = read_experiment(reward, models_dir)
     if experiment is None:
         raise FileNotFoundError(f"no trained models (<mode>_seed<seed>_agent_A.pt) in {models_dir}")
-    experiment = with_manifest(experiment)
     if (found := experiment.settings["reward_mode"]) != reward:
         raise ValueError(f"{models_dir} holds agents trained with reward {found!r}, not {reward!r}")
     if not np.array_equal(experiment.grid, grid):
@@ -201,15 +184,16 @@ def evaluate_batch(
 ) -> dict[str, dict[str, list]]:
     """Measures of every trained seed: {mode: {"seeds": [...], condition: [measures per
     seed]}}, on the test episodes (start cells from ``EVAL_SEED``)."""
-    setting = EvaluationSetting(grid=grid, max_steps=horizon)
+    env = VectorMultiAgentEnv(1, grid=grid, max_steps=horizon)
     batch: dict[str, dict[str, list]] = {}
     for mode in MODES:
         seeds = experiment.seeds.get(mode, [])
         entry: dict[str, list] = {"seeds": list(seeds), "greedy": [], "epsilon": []}
         for seed in seeds:
             models = load_model_pair(experiment.models_dir, mode, seed)
-            for condition, rate in zip(CONDITIONS, (0.0, epsilon), strict=True):
-                results = evaluate_models(setting, *models, episodes, rate, seed=EVAL_SEED)
+            evaluator = MultiAgentEvaluator(env, *models, epsilon=epsilon, seed=EVAL_SEED)
+            runs = evaluator.run_conditions(episodes)  # greedy and ε-greedy, one batch
+            for condition, results in zip(CONDITIONS, runs.values(), strict=True):
                 positions = results.trajectories["positions"]
                 measures = episode_measures(positions, results.lengths, results.successes, grid)
                 entry[condition].append(measures)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import reward_study
 import torch
+from analysis_runs import sha256_of
 from analysis_stats import seed_statistics
 from baselines import random_policy
 from grid_maps import generate_map, save_map
@@ -326,11 +327,15 @@ def test_study_refuses_a_batch_trained_on_the_other_reward(tmp_path):
 def test_a_batch_manifest_decides_runs_and_settings(tmp_path):
     grid = generate_map((10, 10), 641)
     write_batch(tmp_path, "arrival", grid)  # files of seeds 1 and 2
-    run = {"mode": "full", "seed": 2, "models": {}, "sha256": {}, "selection": {}}
+    for agent in "AB":  # the manifest lists seed 2 only: seed 1 is another batch's
+        (tmp_path / f"full_seed1_agent_{agent}.pt").unlink()
+    models = {agent: f"full_seed2_agent_{agent}.pt" for agent in "AB"}
+    digests = {agent: sha256_of(tmp_path / name) for agent, name in models.items()}
+    run = {"mode": "full", "seed": 2, "models": models, "sha256": digests, "selection": {}}
     manifest = {"format": 1, "reward_mode": "per_step", "hyperparameters": {"max_steps": 50}}
     manifest["runs"] = {"full_seed2": run}
     (tmp_path / "manifest.json").write_text(json.dumps(manifest), encoding="utf-8")
-    batch = reward_study.open_batch(tmp_path, "per_step", grid, 50)
+    batch = reward_study.open_batch(tmp_path, "per_step", grid, 50)  # not hyperparameters.json
     assert batch.seeds == {"full": [2]}
     with pytest.raises(ValueError, match="trained with reward 'per_step', not 'arrival'"):
         reward_study.open_batch(tmp_path, "arrival", grid, 50)
