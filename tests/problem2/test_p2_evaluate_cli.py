@@ -202,8 +202,9 @@ def test_studies_are_discovered_with_their_labels(tiny_root: Path, tmp_path: Pat
     shutil.copytree(tiny_root / "agent_models", tmp_path / "agent_models")
     study = tmp_path / "studies" / "no_dial" / "agent_models"
     shutil.copytree(tiny_root / "agent_models", study)
-    settings = json.loads((study / "hyperparameters.json").read_text())
-    (study / "hyperparameters.json").write_text(json.dumps(settings | {"comm_learning": "none"}))
+    manifest = json.loads((study / "manifest.json").read_text())  # the batch's settings
+    manifest["hyperparameters"]["comm_learning"] = "none"
+    (study / "manifest.json").write_text(json.dumps(manifest))
     panel = tmp_path / "studies" / "map_panel" / "map3" / "agent_models"
     panel.mkdir(parents=True)
     for path in (tiny_root / "agent_models").glob("full_seed641_*"):
@@ -286,6 +287,7 @@ def test_models_with_bad_outputs_are_named(
 ) -> None:
     models = tmp_path / "agent_models"
     shutil.copytree(tiny_root / "agent_models", models)
+    (models / "manifest.json").unlink()  # else the changed file is refused as "damaged"
     _export_bad(models / "comm_seed641_agent_B.pt", kind)
     with pytest.raises(SystemExit, match=f"comm_seed641_agent_B.pt.*{message}"):
         main(_quick(models))
@@ -347,9 +349,12 @@ def test_manifest_runs_are_evaluated_and_foreign_or_changed_files_refused(
 
 
 def test_without_manifest_the_files_found_are_evaluated_with_a_note(
-    tiny_root: Path, capsys
+    tiny_root: Path, tmp_path: Path, capsys
 ) -> None:
-    main(_quick(tiny_root / "agent_models"))
+    models = tmp_path / "agent_models"
+    shutil.copytree(tiny_root / "agent_models", models)
+    (models / "manifest.json").unlink()  # e.g. models trained before manifests existed
+    main(_quick(models))
     assert "no manifest.json" in capsys.readouterr().out
 
 
