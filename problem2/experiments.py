@@ -14,7 +14,6 @@ Used by ``python train.py``. For ``output_dir`` (default ``results``) it writes:
 from __future__ import annotations
 
 import csv
-import io
 import multiprocessing as mp
 import queue
 import shutil
@@ -27,7 +26,6 @@ import numpy as np
 import torch
 from _atomic import temporary_path_for, write_json_atomic
 from matplotlib.figure import Figure
-from models import export_policy
 from multi_agent_env import MultiAgentEnv, generate_map, save_map
 from rollout import EVAL_EPSILON, EVAL_SEED, run_episodes, summarize
 from train_config import TrainConfig
@@ -48,16 +46,6 @@ def run_name(mode: str, seed: int) -> str:
     return f"{mode}_seed{seed}"
 
 
-def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    """Rows of equal keys to CSV, atomically."""
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]), lineterminator="\n")
-    writer.writeheader()
-    writer.writerows(rows)
-    with temporary_path_for(path) as temporary:
-        temporary.write_text(buffer.getvalue())
-
-
 def read_csv(path: Path) -> list[dict[str, float]]:
     with open(path, newline="") as handle:
         return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(handle)]
@@ -76,20 +64,19 @@ def train_one(cfg: TrainConfig, mode: str, seed: int, progress_queue: Any = None
     trainer = MultiAgentTrainer(env, run_cfg)
     name = run_name(mode, seed)
     models_dir, logs_dir = output_paths(cfg)
+    trainer.models_dir, trainer.logs_dir = models_dir, logs_dir
     start = time.perf_counter()
 
     def report(row: dict[str, Any]) -> None:
         if progress_queue is not None:
             progress_queue.put((name, row, time.perf_counter() - start))
         if cfg.save_freq and row["env_steps"] % cfg.save_freq < cfg.eval_interval:
-            save_models(trainer, models_dir, name)
+            trainer.save_models()
 
-    trainer.train(report)
-    save_models(trainer, models_dir, name)
-    write_csv(logs_dir / f"{name}.csv", trainer.log)
+    trainer.train(report)  # writes the models and the log
     final: dict[str, Any] = {"mode": mode, "seed": seed}
     for label, epsilon in (("greedy", 0.0), ("eps", EVAL_EPSILON)):
-        eval_env = trainer._make_env(500, None)
+        eval_env = trainer.make_vector_env(500, None)
         episodes = run_episodes(
             eval_env, trainer.policy(epsilon), cfg.final_eval_episodes, seed=EVAL_SEED, record=True
         )
@@ -100,13 +87,6 @@ def train_one(cfg: TrainConfig, mode: str, seed: int, progress_queue: Any = None
     write_json_atomic(logs_dir / f"{name}_final.json", final)
     final["seconds"] = time.perf_counter() - start
     return final
-
-
-def save_models(trainer: MultiAgentTrainer, models_dir: Path, name: str) -> None:
-    for index, agent in enumerate("AB"):
-        export_policy(
-            trainer.online.agent(index), trainer.mode, models_dir / f"{name}_agent_{agent}.pt"
-        )
 
 
 def episode_statistics(episodes: Any, target: tuple[int, int]) -> dict[str, Any]:

@@ -55,8 +55,9 @@ class TrainConfig:
     """initial exploration rate"""
     epsilon_end: float = 0.05
     """final exploration rate"""
-    epsilon_decay: float = 0.5
-    """fraction of the run over which epsilon falls linearly from start to end"""
+    epsilon_decay: float = 0.0
+    """the course skeleton's multiplicative decay of epsilon per finished episode (e.g. 0.995:
+    epsilon <- max(epsilon_end, epsilon * 0.995)); 0 = linear schedule (see epsilon_fraction)"""
     hidden_dim: int = 64
     """units of the hidden layer"""
     target_update: int = 250
@@ -91,6 +92,11 @@ class TrainConfig:
     """folder (relative to problem2/) for agent_models/ and training_logs/"""
     workers: int = 2
     """parallel training processes (one per core)"""
+    epsilon_fraction: float = 0.5
+    """fraction of the run over which epsilon falls linearly from start to end"""
+    select_by: str = "success"
+    """checkpoint selection on validation episodes: success (mean of greedy and epsilon
+    success) or return (mean validation return under the trained reward)"""
 
     def run_seeds(self) -> list[int]:
         return list(self.seeds) if self.seeds else [self.seed + i for i in range(self.num_seeds)]
@@ -115,7 +121,13 @@ class TrainConfig:
                 0.0 <= self.epsilon_end <= self.epsilon_start <= 1.0,
                 "need 0 <= epsilon_end <= epsilon_start <= 1",
             ),
-            (0.0 < self.epsilon_decay <= 1.0, "epsilon_decay is a fraction of the run in (0, 1]"),
+            (
+                0.0 <= self.epsilon_decay < 1.0,
+                "epsilon_decay is a multiplicative factor per episode in (0, 1), or 0 for the "
+                "linear schedule over epsilon_fraction of the run",
+            ),
+            (0.0 < self.epsilon_fraction <= 1.0, "epsilon_fraction must lie in (0, 1]"),
+            (self.select_by in ("success", "return"), "select_by must be success or return"),
             (self.total_steps > 0 or self.num_episodes > 0, "give total_steps or num_episodes"),
             (
                 self.batch_size > 0 and self.num_envs > 0 and self.hidden_dim > 0,
