@@ -14,6 +14,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from paired_networks import PairedQNetworks
 
 
@@ -99,11 +100,13 @@ class FastTDGradient:
         dial: bool,
         comm_noise: float,
         noise_rng: torch.Generator,
+        weighted: bool = False,
     ) -> None:
         if online.dueling:
             raise ValueError("the hand-written gradient covers the plain network only")
         self.online, self.target, self.mask = online, target, mask.view(-1, 1)
         self.gamma, self.dial, self.comm_noise, self.noise_rng = gamma, dial, comm_noise, noise_rng
+        self.weighted = weighted  # importance weights other than 1 (prioritised replay)
         self.num_actions = online.num_actions
         self.message = online.input_dim - 2  # input index of the received message
         self._views: tuple[int, int, int, LayerViews, LayerViews, LayerViews] | None = None
@@ -126,21 +129,23 @@ class FastTDGradient:
         return self._views[3:]
 
     def buffers(self, batch_size: int) -> dict[str, torch.Tensor]:
-        """Activations (2, features, B), reused between calls of the same batch size."""
+        """Activations (2, features, B), reused between calls of the same batch size. With
+        DIAL the online network sees the next and the previous observations side by side
+        in one pass (2B). (Halves of a buffer are never written with ``out=``: a strided
+        output makes a batched product copy, slower than two products.)"""
         if batch_size not in self._buffers:
-            online = self.online
-            sizes = {"input": online.input_dim, "hidden": online.hidden_dim}
-            sizes |= {"q": self.num_actions, "message": 1, "head": online.head_dim}
+            online, b = self.online, batch_size
+            both = 2 * b if self.dial else b  # next (and previous) observations
             shapes = dict(
-                x="input", next_x="input", prev_x="input", target_hidden="hidden",
-                next_logit="message", prev_hidden="hidden", logit="message",
-                next_hidden="hidden", next_q="q", next_target_hidden="hidden",
-                next_target_q="q", hidden="hidden", q="q", grad_heads="head",
-                grad_hidden="hidden", grad_received="message", grad_prev_hidden="hidden",
+                x=(online.input_dim, b), next_prev_x=(online.input_dim, both),
+                target_hidden=(online.hidden_dim, b), next_logit=(1, b),
+                next_prev_hidden=(online.hidden_dim, both), next_prev_heads=(online.head_dim, both),
+                next_target_hidden=(online.hidden_dim, b), next_target_q=(self.num_actions, b),
+                hidden=(online.hidden_dim, b), q=(self.num_actions, b),
+                grad_heads=(online.head_dim, b), grad_hidden=(online.hidden_dim, b),
+                grad_received=(1, b), grad_prev_hidden=(online.hidden_dim, b),
             )  # fmt: skip
-            self._buffers = {
-                batch_size: {k: torch.empty(2, sizes[v], batch_size) for k, v in shapes.items()}
-            }
+            self._buffers = {b: {k: torch.empty(2, *shape) for k, shape in shapes.items()}}
         return self._buffers[batch_size]
 
     @torch.no_grad()
@@ -148,31 +153,37 @@ class FastTDGradient:
         online, target, grad = self.views()
         size, m = batch.obs.shape[1], self.message
         buf = self.buffers(size)
-        x = torch.mul(batch.obs.transpose(1, 2), self.mask, out=buf["x"])  # (2, D, B)
-        next_x = torch.mul(batch.next_obs.transpose(1, 2), self.mask, out=buf["next_x"])
+        # Masked inputs, feature-major (2, D, B); next and previous side by side (2, D, 2B).
+        x = torch.mul(batch.obs.transpose(1, 2), self.mask, out=buf["x"])
+        next_prev_x = buf["next_prev_x"]
+        next_x, prev_x = next_prev_x[..., :size], next_prev_x[..., size:]
+        torch.mul(batch.next_obs.transpose(1, 2), self.mask, out=next_x)
         if self.dial:
+            torch.mul(batch.prev_obs.transpose(1, 2), self.mask, out=prev_x)
             # Next message: the partner's target network on the stored observation.
             target_hidden = target.hidden(x, buf["target_hidden"])
             next_logit = target.message(target_hidden, buf["next_logit"])  # (2, 1, B)
-            next_x[:, m] = next_logit[:, 0].sigmoid_().flip(0)
+            torch.sigmoid(next_logit.flip(0)[:, 0], out=next_x[:, m])
+        # One online pass: Q on the next observations (for the Double DQN argmax) and, with
+        # DIAL, the message logits on the previous ones.
+        next_prev_hidden = online.hidden(next_prev_x, buf["next_prev_hidden"])
+        heads = online.heads(next_prev_hidden, buf["next_prev_heads"])
+        best_next = heads[:, : self.num_actions, :size].max(1, keepdim=True).indices  # (2,1,B)
+        if self.dial:
             # Received message: the partner's online network on its previous observation.
-            prev_x = torch.mul(batch.prev_obs.transpose(1, 2), self.mask, out=buf["prev_x"])
-            prev_hidden = online.hidden(prev_x, buf["prev_hidden"])
-            logit = online.message(prev_hidden, buf["logit"])
+            prev_hidden, logit = next_prev_hidden[..., size:], heads[:, -1:, size:]
             if self.comm_noise > 0:
                 noise = torch.randn(logit.shape, generator=self.noise_rng)
                 logit.add_(noise, alpha=self.comm_noise)
             sent = logit.sigmoid_()  # (2, 1, B), indexed by the sender
             has_prev = batch.has_prev  # (B,) 1.0 / 0.0
-            x[:, m] = torch.where(has_prev > 0, sent[:, 0].flip(0), x[:, m])
-        # TD target: online argmax, target value (Double DQN), no gradient.
-        next_q = online.q(online.hidden(next_x, buf["next_hidden"]), buf["next_q"])
-        best_next = next_q.max(1, keepdim=True).indices  # (2, 1, B)
+            torch.where(has_prev > 0, sent.flip(0)[:, 0], x[:, m], out=x[:, m])
+        # TD target: the target network's value of the online argmax, no gradient.
         next_target_q = target.q(
             target.hidden(next_x, buf["next_target_hidden"]), buf["next_target_q"]
         )
         next_value = next_target_q.gather(1, best_next)[:, 0]  # (2, B)
-        y = torch.add(batch.reward, next_value, alpha=self.gamma)  # r + γ (1 - done) max Q'
+        y = torch.add(batch.reward, next_value, alpha=self.gamma)  # r + γ (1 - done) Q'
         y.addcmul_(batch.done, next_value, value=-self.gamma)
         # Forward on the current observation, Huber loss.
         hidden = online.hidden(x, buf["hidden"])  # (2, H, B)
@@ -180,17 +191,19 @@ class FastTDGradient:
         actions = batch.actions.unsqueeze(1)  # (2, 1, B)
         q_taken = q.gather(1, actions)[:, 0]  # (2, B)
         delta = q_taken - y
-        abs_delta = delta.abs()
-        clipped = abs_delta.clamp(max=1.0)
-        weights = batch.weights / size
-        loss = float(torch.sub(abs_delta, clipped, alpha=0.5).mul_(clipped).mul_(weights).sum())
+        if self.weighted:
+            scale = batch.weights / size
+            loss = float(F.huber_loss(q_taken, y, reduction="none").mul_(scale).sum())
+        else:
+            scale = 1.0 / size
+            loss = float(F.huber_loss(q_taken, y, reduction="sum")) * scale
         # Backward.
         grad_heads = buf["grad_heads"].zero_()  # (2, K, B)
-        grad_heads.scatter_(1, actions, delta.clamp(-1.0, 1.0).mul_(weights).unsqueeze(1))
+        grad_heads.scatter_(1, actions, delta.clamp(-1.0, 1.0).mul_(scale).unsqueeze(1))
         torch.bmm(grad_heads, hidden.transpose(1, 2), out=grad.w2)
         torch.sum(grad_heads, dim=2, out=grad.b2)
         grad_hidden = torch.bmm(online.w2_t, grad_heads, out=buf["grad_hidden"])
-        grad_hidden = relu_backward(grad_hidden, hidden)
+        relu_backward_(grad_hidden, hidden)
         torch.bmm(grad_hidden, x.transpose(1, 2), out=grad.w1)
         torch.sum(grad_hidden, dim=2, out=grad.b1)
         if self.dial:
@@ -199,7 +212,7 @@ class FastTDGradient:
             grad.wm.baddbmm_(grad_logit, prev_hidden.transpose(1, 2))
             grad.bm.add_(grad_logit.sum(dim=2))
             grad_prev_hidden = torch.bmm(online.wm_t, grad_logit, out=buf["grad_prev_hidden"])
-            grad_prev_hidden = relu_backward(grad_prev_hidden, prev_hidden)
+            relu_backward_(grad_prev_hidden, prev_hidden)
             grad.w1.baddbmm_(grad_prev_hidden, prev_x.transpose(1, 2))
             grad.b1.add_(grad_prev_hidden.sum(dim=2))
         return loss, delta, float(q_taken.mean())
@@ -243,14 +256,18 @@ class LayerViews:
         """Q-values (2, A, B) of hidden activations (2, H, B)."""
         return torch.baddbmm(self.bq, self.wq, hidden, out=out)
 
+    def heads(self, hidden: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
+        """All K head outputs (2, K, B): the Q-values, then the message logit."""
+        return torch.baddbmm(self.b2, self.w2, hidden, out=out)
+
     def message(self, hidden: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
         """Message logits (2, 1, B) of hidden activations (2, H, B)."""
         return torch.baddbmm(self.bm, self.wm, hidden, out=out)
 
 
-def relu_backward(grad: torch.Tensor, output: torch.Tensor) -> torch.Tensor:
-    """``grad`` where the ReLU's ``output`` is positive, else 0 (one fused operation)."""
-    return torch.ops.aten.threshold_backward(grad, output, 0.0)
+def relu_backward_(grad: torch.Tensor, output: torch.Tensor) -> torch.Tensor:
+    """In place: keep ``grad`` where the ReLU's ``output`` is positive, else 0."""
+    return torch.ops.aten.threshold_backward.grad_input(grad, output, 0.0, grad_input=grad)
 
 
 def sigmoid_backward(grad: torch.Tensor, output: torch.Tensor) -> torch.Tensor:

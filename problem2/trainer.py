@@ -137,7 +137,7 @@ class MultiAgentTrainer:
             if cfg.dueling
             else FastTDGradient(
                 self.online, self.target, self.mask, cfg.gamma, self.dial, cfg.comm_noise,
-                self.noise_rng,
+                self.noise_rng, weighted=cfg.prioritized,
             )
         )  # fmt: skip
         self._batches: dict[tuple, tuple[TransitionBatch, dict[str, np.ndarray]]] = {}
