@@ -13,6 +13,8 @@ interface methods that take one network.
 
 from __future__ import annotations
 
+import math
+
 import torch
 from models import AgentDQN, DuelingDQN, MessagingQNetwork
 from torch import nn
@@ -139,3 +141,42 @@ class PairedQNetworks(nn.Module):
                 network.message_head: message,
             }
         return {network.q_head: actions, network.message_head: message}
+
+
+class FlatAdam:
+    """Adam (Kingma & Ba, 2015) for one flat parameter, computed as ``torch.optim.Adam``
+    computes it (no weight decay): m <- β1 m + (1 − β1) g, v <- β2 v + (1 − β2) g²,
+    θ <- θ − lr / (1 − β1^t) · m / (sqrt(v / (1 − β2^t)) + eps).
+
+    Five tensor operations per step: for the ~2 k weights of both agents, the per-step
+    bookkeeping of ``torch.optim`` costs more than this arithmetic. ``param_groups[0]["lr"]``
+    may be changed between steps, as with a torch optimiser."""
+
+    def __init__(
+        self,
+        param: torch.Tensor,
+        lr: float,
+        betas: tuple[float, float] = (0.9, 0.999),
+        eps: float = 1e-8,
+    ) -> None:
+        self.param, self.betas, self.eps = param, betas, eps
+        self.param_groups = [{"lr": lr}]
+        self.exp_avg = torch.zeros_like(param, memory_format=torch.contiguous_format)
+        self.exp_avg_sq = torch.zeros_like(self.exp_avg)
+        self.steps = 0
+
+    def zero_grad(self) -> None:
+        if self.param.grad is not None:
+            self.param.grad.zero_()
+
+    @torch.no_grad()
+    def step(self) -> None:
+        grad, (beta1, beta2) = self.param.grad, self.betas
+        self.steps += 1
+        self.exp_avg.lerp_(grad, 1.0 - beta1)
+        self.exp_avg_sq.mul_(beta2).addcmul_(grad, grad, value=1.0 - beta2)
+        bias_correction1 = 1.0 - beta1**self.steps
+        bias_correction2 = 1.0 - beta2**self.steps
+        denominator = self.exp_avg_sq.sqrt().div_(math.sqrt(bias_correction2)).add_(self.eps)
+        step_size = self.param_groups[0]["lr"] / bias_correction1
+        self.param.addcdiv_(self.exp_avg, denominator, value=-step_size)

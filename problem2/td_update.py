@@ -145,51 +145,67 @@ class FastTDGradient:
                 grad_heads=(online.head_dim, b), grad_hidden=(online.hidden_dim, b),
                 grad_received=(1, b), grad_prev_hidden=(online.hidden_dim, b),
             )  # fmt: skip
-            self._buffers = {b: {k: torch.empty(2, *shape) for k, shape in shapes.items()}}
+            buf = {k: torch.empty(2, *shape) for k, shape in shapes.items()}
+            # Views used on every call, made once (each view costs about as much as an op).
+            m, next_prev_x, next_prev_hidden = (
+                self.message,
+                buf["next_prev_x"],
+                buf["next_prev_hidden"],
+            )
+            buf |= dict(
+                next_x=next_prev_x[..., :b], prev_x=next_prev_x[..., b:],
+                x_message=buf["x"][:, m], next_x_message=next_prev_x[:, m, :b],
+                next_q=buf["next_prev_heads"][:, : self.num_actions, :b],
+                logit=buf["next_prev_heads"][:, -1:, b:], prev_hidden=next_prev_hidden[..., b:],
+                hidden_t=buf["hidden"].transpose(1, 2), x_t=buf["x"].transpose(1, 2),
+                prev_hidden_t=next_prev_hidden[..., b:].transpose(1, 2),
+                prev_x_t=next_prev_x[..., b:].transpose(1, 2),
+            )  # fmt: skip
+            self._buffers = {b: buf}
         return self._buffers[batch_size]
 
     @torch.no_grad()
     def __call__(self, batch: TransitionBatch) -> tuple[float, torch.Tensor, float]:
         online, target, grad = self.views()
-        size, m = batch.obs.shape[1], self.message
+        size = batch.obs.shape[1]
         buf = self.buffers(size)
         # Masked inputs, feature-major (2, D, B); next and previous side by side (2, D, 2B).
         x = torch.mul(batch.obs.transpose(1, 2), self.mask, out=buf["x"])
-        next_prev_x = buf["next_prev_x"]
-        next_x, prev_x = next_prev_x[..., :size], next_prev_x[..., size:]
-        torch.mul(batch.next_obs.transpose(1, 2), self.mask, out=next_x)
+        next_x = torch.mul(batch.next_obs.transpose(1, 2), self.mask, out=buf["next_x"])
         if self.dial:
-            torch.mul(batch.prev_obs.transpose(1, 2), self.mask, out=prev_x)
+            torch.mul(batch.prev_obs.transpose(1, 2), self.mask, out=buf["prev_x"])
             # Next message: the partner's target network on the stored observation.
             target_hidden = target.hidden(x, buf["target_hidden"])
             next_logit = target.message(target_hidden, buf["next_logit"])  # (2, 1, B)
-            torch.sigmoid(next_logit.flip(0)[:, 0], out=next_x[:, m])
+            torch.sigmoid(next_logit.flip(0).squeeze(1), out=buf["next_x_message"])
         # One online pass: Q on the next observations (for the Double DQN argmax) and, with
         # DIAL, the message logits on the previous ones.
-        next_prev_hidden = online.hidden(next_prev_x, buf["next_prev_hidden"])
-        heads = online.heads(next_prev_hidden, buf["next_prev_heads"])
-        best_next = heads[:, : self.num_actions, :size].max(1, keepdim=True).indices  # (2,1,B)
+        online.heads(
+            online.hidden(buf["next_prev_x"], buf["next_prev_hidden"]), buf["next_prev_heads"]
+        )
+        best_next = buf["next_q"].max(1, keepdim=True).indices  # (2, 1, B)
         if self.dial:
             # Received message: the partner's online network on its previous observation.
-            prev_hidden, logit = next_prev_hidden[..., size:], heads[:, -1:, size:]
+            logit = buf["logit"]
             if self.comm_noise > 0:
                 noise = torch.randn(logit.shape, generator=self.noise_rng)
                 logit.add_(noise, alpha=self.comm_noise)
             sent = logit.sigmoid_()  # (2, 1, B), indexed by the sender
             has_prev = batch.has_prev  # (B,) 1.0 / 0.0
-            torch.where(has_prev > 0, sent.flip(0)[:, 0], x[:, m], out=x[:, m])
+            x_message = buf["x_message"]
+            torch.where(has_prev > 0, sent.flip(0).squeeze(1), x_message, out=x_message)
         # TD target: the target network's value of the online argmax, no gradient.
         next_target_q = target.q(
             target.hidden(next_x, buf["next_target_hidden"]), buf["next_target_q"]
         )
-        next_value = next_target_q.gather(1, best_next)[:, 0]  # (2, B)
+        next_value = next_target_q.gather(1, best_next).squeeze(1)  # (2, B)
         y = torch.add(batch.reward, next_value, alpha=self.gamma)  # r + γ (1 - done) Q'
         y.addcmul_(batch.done, next_value, value=-self.gamma)
         # Forward on the current observation, Huber loss.
         hidden = online.hidden(x, buf["hidden"])  # (2, H, B)
         q = online.q(hidden, buf["q"])  # (2, A, B)
         actions = batch.actions.unsqueeze(1)  # (2, 1, B)
-        q_taken = q.gather(1, actions)[:, 0]  # (2, B)
+        q_taken = q.gather(1, actions).squeeze(1)  # (2, B)
         delta = q_taken - y
         if self.weighted:
             scale = batch.weights / size
@@ -200,20 +216,20 @@ class FastTDGradient:
         # Backward.
         grad_heads = buf["grad_heads"].zero_()  # (2, K, B)
         grad_heads.scatter_(1, actions, delta.clamp(-1.0, 1.0).mul_(scale).unsqueeze(1))
-        torch.bmm(grad_heads, hidden.transpose(1, 2), out=grad.w2)
+        torch.bmm(grad_heads, buf["hidden_t"], out=grad.w2)
         torch.sum(grad_heads, dim=2, out=grad.b2)
         grad_hidden = torch.bmm(online.w2_t, grad_heads, out=buf["grad_hidden"])
         relu_backward_(grad_hidden, hidden)
-        torch.bmm(grad_hidden, x.transpose(1, 2), out=grad.w1)
+        torch.bmm(grad_hidden, buf["x_t"], out=grad.w1)
         torch.sum(grad_hidden, dim=2, out=grad.b1)
         if self.dial:
             grad_received = torch.bmm(online.w1_message, grad_hidden, out=buf["grad_received"])
             grad_logit = sigmoid_backward(grad_received.mul_(has_prev).flip(0), sent)
-            grad.wm.baddbmm_(grad_logit, prev_hidden.transpose(1, 2))
+            grad.wm.baddbmm_(grad_logit, buf["prev_hidden_t"])
             grad.bm.add_(grad_logit.sum(dim=2))
             grad_prev_hidden = torch.bmm(online.wm_t, grad_logit, out=buf["grad_prev_hidden"])
-            relu_backward_(grad_prev_hidden, prev_hidden)
-            grad.w1.baddbmm_(grad_prev_hidden, prev_x.transpose(1, 2))
+            relu_backward_(grad_prev_hidden, buf["prev_hidden"])
+            grad.w1.baddbmm_(grad_prev_hidden, buf["prev_x_t"])
             grad.b1.add_(grad_prev_hidden.sum(dim=2))
         return loss, delta, float(q_taken.mean())
 

@@ -29,7 +29,7 @@ import torch
 import torch.nn.functional as F
 from models import export_policy, observation_mask
 from multi_agent_env import NUM_ACTIONS, MultiAgentEnv, VectorMultiAgentEnv
-from paired_networks import PairedQNetworks
+from paired_networks import FlatAdam, PairedQNetworks
 from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED, PolicyFn, evaluate_policy
 from td_update import FastTDGradient, TransitionBatch
@@ -128,7 +128,7 @@ class MultiAgentTrainer:
         self.target = PairedQNetworks(self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, cfg.dueling)
         self.target.load_state_dict(self.online.state_dict())
         self.target.requires_grad_(False)
-        self.optimizer = torch.optim.Adam(self.online.parameters(), lr=cfg.lr, fused=True)
+        self.optimizer = FlatAdam(self.online.flat, lr=cfg.lr)  # = torch.optim.Adam, faster
         buffer_class = PrioritizedReplayBuffer if cfg.prioritized else ReplayBuffer
         self.replay_buffer = buffer_class(cfg.buffer_size, seed=self.seed)
         self.dial = cfg.comm_learning == "dial" and self.mode != "independent"
@@ -154,11 +154,6 @@ class MultiAgentTrainer:
         self.best_selection: dict[str, float] = {}
         self._best_state = {k: v.clone() for k, v in self.online.state_dict().items()}
         self._episode_rollout: Rollout | None = None  # for train_episode()
-
-    @property
-    def buffer(self) -> ReplayBuffer:
-        """The replay buffer (also ``replay_buffer``, the skeleton's name)."""
-        return self.replay_buffer
 
     # ------------------------------------------------------------------ acting
     def make_vector_env(self, n_envs: int, seed: int | None) -> VectorMultiAgentEnv:

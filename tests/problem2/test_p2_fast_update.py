@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 from multi_agent_env import MultiAgentEnv
-from paired_networks import PairedQNetworks
+from paired_networks import FlatAdam, PairedQNetworks
 from td_update import FastTDGradient, TransitionBatch
 from train_config import TrainConfig
 
@@ -94,3 +94,19 @@ def test_dueling_is_left_to_autograd() -> None:
     online = PairedQNetworks(11, 16, 5, dueling=True)
     with pytest.raises(ValueError, match="plain network"):
         FastTDGradient(online, online, torch.ones(11), 0.99, True, 1.0, torch.Generator())
+
+
+def test_flat_adam_steps_as_torch_adam() -> None:
+    torch.manual_seed(0)
+    reference = torch.nn.Parameter(torch.randn(300))
+    flat = torch.nn.Parameter(reference.detach().clone())
+    torch_adam, flat_adam = torch.optim.Adam([reference], lr=1e-2), FlatAdam(flat, lr=1e-2)
+    for step in range(40):
+        gradient = torch.randn(300)
+        reference.grad, flat.grad = gradient.clone(), gradient.clone()
+        if step == 20:  # a learning-rate schedule changes the group's lr between steps
+            torch_adam.param_groups[0]["lr"] = flat_adam.param_groups[0]["lr"] = 3e-3
+        torch_adam.step()
+        flat_adam.step()
+    torch.testing.assert_close(flat.detach(), reference.detach(), rtol=1e-5, atol=1e-6)
+    assert not torch.equal(flat.detach(), torch.zeros(300))
