@@ -250,7 +250,7 @@ class MultiAgentTrainer:
         obs, next_obs = batch.obs * self.mask, batch.next_obs * self.mask
         if self.dial:
             obs, next_obs = self.splice_messages(batch, obs, next_obs)
-        with torch.no_grad():
+        with torch.no_grad():  # y = r + γ (1 − done) Q_target(s', argmax_a Q_online(s', a))
             best_next = self.online(next_obs)[0].max(dim=-1, keepdim=True).indices
             next_value = self.target(next_obs)[0].gather(-1, best_next)[..., 0]
             target = batch.reward + self.cfg.gamma * (1.0 - batch.done) * next_value
