@@ -60,8 +60,9 @@ class TrainConfig:
     epsilon <- max(epsilon_end, epsilon * 0.995)); 0 = linear schedule (see epsilon_fraction)"""
     hidden_dim: int = 64
     """units of the hidden layer"""
-    target_update: int = 250
-    """gradient updates between hard copies of the online into the target networks"""
+    target_update: int = 100
+    """gradient updates (not env steps) between hard copies of the online into the target
+    networks"""
     buffer_size: int = 100_000
     """replay capacity in joint transitions"""
     learning_starts: int = 5_000
@@ -92,7 +93,7 @@ class TrainConfig:
     """folder (relative to problem2/) for agent_models/ and training_logs/"""
     workers: int = 2
     """parallel training processes (one per core)"""
-    epsilon_fraction: float = 0.5
+    epsilon_fraction: float = 0.3
     """fraction of the run over which epsilon falls linearly from start to end"""
     select_by: str = "success"
     """checkpoint selection on validation episodes: success (mean of greedy and epsilon
