@@ -38,7 +38,6 @@ from _atomic import (
 )
 from batch_workers import ProgressLine, run_jobs
 from matplotlib.figure import Figure
-from models import export_policy
 from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv, generate_map, save_map
 from rollout import EVAL_EPSILON, VALIDATION_SEED, run_episodes, summarize
 from train_config import DEFAULT_OUTPUT_DIR, SettingError, TrainConfig
@@ -139,26 +138,9 @@ def check_output_dir(cfg: TrainConfig) -> None:
 
 
 # ------------------------------------------------------------------------------- one run
-def append_csv_row(path: Path, row: dict[str, Any]) -> None:
-    """Append one log row (the header first if the file is new), flushed at once."""
-    new = not path.exists()
-    with open(path, "a", newline="", encoding="utf-8") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(row), lineterminator="\n")
-        if new:
-            writer.writeheader()
-        writer.writerow(row)
-
-
 def read_csv(path: Path) -> list[dict[str, float]]:
     with open(path, newline="", encoding="utf-8") as handle:
         return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(handle)]
-
-
-def save_models(trainer: MultiAgentTrainer, models_dir: Path, name: str) -> None:
-    for index, agent in enumerate("AB"):
-        export_policy(
-            trainer.online.agent(index), trainer.mode, models_dir / f"{name}_agent_{agent}.pt"
-        )
 
 
 def train_one(
@@ -178,25 +160,18 @@ def train_one(
         reward_mode=cfg.reward_mode,
     )
     trainer = MultiAgentTrainer(env, run_cfg)
-    # A trainer that saves its own models and appends its own CSV rows has models_dir and
-    # logs_dir; for one that does not, this function does both.
-    trainer_writes = hasattr(trainer, "logs_dir")
-    if trainer_writes:
-        trainer.models_dir, trainer.logs_dir = models_dir, logs_dir
+    # train() appends each log row to its CSV file as it is measured and saves the models.
+    trainer.models_dir, trainer.logs_dir = models_dir, logs_dir
     name = run_name(mode, seed)
     start = time.perf_counter()
 
     def report(row: dict[str, Any]) -> None:
-        if not trainer_writes:
-            append_csv_row(logs_dir / f"{name}.csv", row)
         if progress is not None:
             progress.put((name, row, time.perf_counter() - start))
         if cfg.save_freq and row["env_steps"] % cfg.save_freq < cfg.eval_interval:
-            save_models(trainer, models_dir, name)
+            trainer.save_models()
 
     trainer.train(report)
-    if not trainer_writes:
-        save_models(trainer, models_dir, name)
     selection = selection_evaluation(trainer, cfg, env)
     write_json_atomic(logs_dir / f"{name}_selection.json", {"mode": mode, "seed": seed} | selection)
     return {"mode": mode, "seed": seed, **selection, "seconds": time.perf_counter() - start}

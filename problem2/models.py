@@ -22,14 +22,15 @@ import torch
 from _atomic import temporary_path_for
 from torch import nn
 
-OBSERVATION_DIM = 11
-MESSAGE_INDEX = 9  # the partner's last message
-DISTANCE_INDEX = 10  # normalised distance between the agents
+OBSERVATION_DIM = 11  # the default 3 x 3 window: 9 cells, message, distance
+MESSAGE_INDEX = 9  # the partner's last message (w² for a w x w window)
+DISTANCE_INDEX = 10  # normalised distance between the agents (w² + 1)
+MODE_HIDES = {"independent": 2, "comm": 1, "full": 0}  # trailing elements each ablation zeroes
 
 
-def _mask(*zeroed: int) -> np.ndarray:
-    mask = np.ones(OBSERVATION_DIM, dtype=np.float32)
-    mask[list(zeroed)] = 0.0
+def _mask(mode: str, obs_dim: int) -> np.ndarray:
+    mask = np.ones(obs_dim, dtype=np.float32)
+    mask[obs_dim - MODE_HIDES[mode] :] = 0.0
     mask.flags.writeable = False
     return mask
 
@@ -37,17 +38,25 @@ def _mask(*zeroed: int) -> np.ndarray:
 # Multiplicative masks (11,) float32 of the three ablations, used wherever a network sees
 # an observation: acting, both TD passes, evaluation, and inside exported policies.
 OBSERVATION_MASKS: dict[str, np.ndarray] = {
-    "independent": _mask(MESSAGE_INDEX, DISTANCE_INDEX),  # patch only
-    "comm": _mask(DISTANCE_INDEX),  # patch + message
-    "full": _mask(),  # patch + message + distance
+    "independent": _mask("independent", OBSERVATION_DIM),  # patch only
+    "comm": _mask("comm", OBSERVATION_DIM),  # patch + message
+    "full": _mask("full", OBSERVATION_DIM),  # patch + message + distance
 }
 
 
-def observation_mask(mode: str) -> np.ndarray:
-    """The mask (11,) float32 of ablation ``mode``; ValueError for an unknown mode."""
-    if mode not in OBSERVATION_MASKS:
-        raise ValueError(f"unknown mode {mode!r}; expected one of {sorted(OBSERVATION_MASKS)}")
-    return OBSERVATION_MASKS[mode]
+def observation_mask(mode: str, obs_dim: int = OBSERVATION_DIM) -> np.ndarray:
+    """The mask (obs_dim,) float32 of ablation ``mode``; ValueError for an unknown mode.
+
+    An observation of a w x w window has w² + 2 elements: the patch, then the message
+    (index w²) and the distance (index w² + 1); ``independent`` zeroes both, ``comm``
+    the distance, ``full`` nothing."""
+    if mode not in MODE_HIDES:
+        raise ValueError(f"unknown mode {mode!r}; expected one of {sorted(MODE_HIDES)}")
+    if obs_dim == OBSERVATION_DIM:
+        return OBSERVATION_MASKS[mode]
+    if obs_dim < 3:
+        raise ValueError(f"obs_dim must be at least 3 (patch, message, distance), got {obs_dim}")
+    return _mask(mode, obs_dim)
 
 
 def _check_size(name: str, value: int) -> None:
@@ -154,15 +163,15 @@ def export_policy(
     mask: str | Sequence[float] | np.ndarray | torch.Tensor,
     path: str | Path,
 ) -> Path:
-    """Script ``network`` behind ``mask`` (an ablation name or input_dim numbers) and save
-    it atomically with ``torch.jit.save``. ``network`` itself is left untouched (a CPU copy
-    in eval mode is exported). Returns the path written."""
+    """Script ``network`` behind ``mask`` (an ablation name, for any input_dim, or input_dim
+    numbers) and save it atomically with ``torch.jit.save``. ``network`` itself is left
+    untouched (a CPU copy in eval mode is exported). Returns the path written."""
+    input_dim = network.hidden.in_features
     if isinstance(mask, str):
-        mask = observation_mask(mask)
+        mask = observation_mask(mask, input_dim)
     elif isinstance(mask, torch.Tensor):
         mask = mask.detach().cpu().numpy()
     mask_tensor = torch.from_numpy(np.array(mask, dtype=np.float32)).flatten()  # a copy
-    input_dim = network.hidden.in_features
     if mask_tensor.numel() != input_dim:
         raise ValueError(f"mask has {mask_tensor.numel()} elements; the network takes {input_dim}")
     exported = copy.deepcopy(network).cpu().eval().requires_grad_(False)

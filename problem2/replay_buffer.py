@@ -177,11 +177,23 @@ class ReplayBuffer:
         """Every field (required and extras) at slots ``indices`` (B,), as copies."""
         return {name: values[indices] for name, values in self._storage.items()}
 
-    def sample_batch(self, batch_size: int) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+    def sample_batch(
+        self, batch_size: int, out: dict[str, np.ndarray] | None = None
+    ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
         """(all fields as in :meth:`get`, importance weights (B,) float32 — all 1 here —,
-        slots (B,)): one call that serves both buffer types."""
+        slots (B,)): one call that serves both buffer types.
+
+        ``out``: optional arrays to fill in place instead, by field name (any subset of
+        :attr:`field_names`, each (B, ...) of the stored dtype); they are returned as the
+        batch. Filling preallocated arrays saves allocating ten new ones per update."""
         indices = self._draw_indices(self._check_batch_size(batch_size))
-        return self.get(indices), np.ones(len(indices), dtype=np.float32), indices
+        if out is None:
+            batch = self.get(indices)
+        else:
+            for name, array in out.items():
+                np.take(self._storage[name], indices, axis=0, out=array)
+            batch = out
+        return batch, np.ones(len(indices), dtype=np.float32), indices
 
     def sample(self, batch_size: int) -> tuple[np.ndarray, ...]:
         """Uniform sample with replacement: the ten required arrays in interface order,
@@ -275,8 +287,10 @@ class PrioritizedReplayBuffer(ReplayBuffer):
         # Rounding can carry a search just past the last stored slot (priority 0).
         return np.minimum(self._tree.find(prefix_sums), self._size - 1)
 
-    def sample_batch(self, batch_size: int) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
-        batch, _, indices = super().sample_batch(batch_size)
+    def sample_batch(
+        self, batch_size: int, out: dict[str, np.ndarray] | None = None
+    ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+        batch, _, indices = super().sample_batch(batch_size, out)
         probabilities = self._tree.values(indices) / self._tree.total
         weights = (self._size * probabilities) ** -self.beta
         self._samples_drawn += 1

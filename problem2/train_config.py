@@ -76,11 +76,11 @@ class TrainConfig:
     epsilon_decay: float = 0.0
     """the course skeleton's multiplicative factor in (0, 1): after each finished episode
     epsilon <- max(epsilon_end, epsilon * factor) (e.g. 0.995); 0 = linear schedule"""
-    epsilon_fraction: float = 0.5
+    epsilon_fraction: float = 0.3
     """with --epsilon_decay 0: fraction (0, 1] of the run over which epsilon falls linearly"""
     hidden_dim: int = 64
     """units of the hidden layer"""
-    target_update: int = 250
+    target_update: int = 100
     """gradient updates (not episodes, not env steps) between hard copies of the online
     into the target networks"""
     buffer_size: int = 100_000

@@ -8,55 +8,92 @@ receiver's observation is recomputed by the sender's online network from the
 sender's previous observation (with noise on its logit), so the receiver's TD loss
 reaches the sender's message head. The ablation modes only differ in the input
 mask (:func:`apply_observation_mask`), used wherever a network sees an observation.
+
+:meth:`MultiAgentTrainer.train` is the algorithm, step by step; :meth:`td_loss` is the
+loss. For the plain network the update computes the gradient of that loss by hand
+(:mod:`td_update`, several times faster on a CPU, held equal to autograd by a test).
 """
 
 from __future__ import annotations
 
-import copy
+import csv
 import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, fields
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from models import MESSAGE_INDEX, observation_mask
+from models import export_policy, observation_mask
 from multi_agent_env import NUM_ACTIONS, MultiAgentEnv, VectorMultiAgentEnv
-from paired_networks import PairedQNetworks
+from paired_networks import FlatAdam, PairedQNetworks
 from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED, PolicyFn, evaluate_policy
+from td_update import FastTDGradient, TransitionBatch
 from train_config import TrainConfig
 
-_TORCH_MASKS: dict[str, torch.Tensor] = {}
+LOG_FIELDS = (
+    "env_steps", "episodes", "updates", "epsilon", "loss", "mean_q", "train_return",
+    "train_success", "eval_success_greedy", "eval_success_eps", "eval_return_greedy",
+    "eval_return_eps",
+)  # fmt: skip
 
 
 def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndarray | torch.Tensor:
-    """Zero the inputs that ablation ``mode`` hides: ``independent`` elements 9 and 10
-    (message, distance), ``comm`` element 10, ``full`` none. Any leading shape (..., 11)."""
+    """Zero the inputs that ablation ``mode`` hides: ``independent`` the message and the
+    distance (the last two elements, 9 and 10 for a 3 x 3 window), ``comm`` the distance,
+    ``full`` none. Any leading shape (..., obs_dim)."""
+    mask = observation_mask(mode, obs.shape[-1])
     if isinstance(obs, torch.Tensor):
-        if mode not in _TORCH_MASKS:
-            _TORCH_MASKS[mode] = torch.tensor(observation_mask(mode))
-        return obs * _TORCH_MASKS[mode]
-    return np.asarray(obs, dtype=np.float32) * observation_mask(mode)
+        return obs * torch.tensor(mask)
+    return np.asarray(obs, dtype=np.float32) * mask
+
+
+def config_from(args: Any) -> TrainConfig:
+    """A TrainConfig from a TrainConfig or any namespace (e.g. the course skeleton's, whose
+    ``grid_size`` is a list and whose ``mode`` may be missing or ``all``: one trainer trains
+    ``full`` then). Unknown attributes are ignored; the map comes from the environment."""
+    if isinstance(args, TrainConfig):
+        settings = args.to_dict()
+    else:
+        known = {f.name for f in fields(TrainConfig)}
+        settings = {k: v for k, v in vars(args).items() if k in known and v is not None}
+    if settings.get("mode", "all") == "all":
+        settings["mode"] = "full"
+    settings.pop("grid_size", None)  # the trainer trains on env's grid
+    return TrainConfig(**settings).validate()
 
 
 @dataclass
 class Rollout:
-    """A vectorised environment and what the collector tracks per copy (N copies)."""
+    """N environment copies being played, and what the learner tracks for each."""
 
     env: VectorMultiAgentEnv
     obs: np.ndarray  # (N, 2, D) current observations of A and B
     prev_obs: np.ndarray  # (N, 2, D) observations one step earlier (zeros at an episode start)
-    has_prev: np.ndarray  # (N,) bool, whether prev_obs is real
+    has_prev: np.ndarray  # (N,) float32, 1.0 where prev_obs is real
     returns: np.ndarray  # (N,) return of the running episodes
 
     @classmethod
     def start(cls, env: VectorMultiAgentEnv) -> Rollout:
         obs = env.reset()
         n = env.n_envs
-        return cls(env, obs, np.zeros_like(obs), np.zeros(n, dtype=bool), np.zeros(n))
+        return cls(env, obs, np.zeros_like(obs), np.zeros(n, np.float32), np.zeros(n))
+
+    def advance(
+        self, next_obs: np.ndarray, rewards: np.ndarray, finished: np.ndarray
+    ) -> np.ndarray:
+        """Move on to ``next_obs``; return the returns of the episodes that ``finished``."""
+        self.returns += rewards
+        finished_returns = self.returns[finished].copy()
+        self.returns[finished] = 0.0
+        self.prev_obs = np.where(finished[:, None, None], 0.0, self.obs).astype(np.float32)
+        self.has_prev = (~finished).astype(np.float32)
+        self.obs = next_obs
+        return finished_returns
 
 
 class MultiAgentTrainer:
@@ -64,58 +101,72 @@ class MultiAgentTrainer:
 
     Args:
         env: the environment whose map, window and time limit training uses.
-        args: a :class:`TrainConfig` (or any namespace with its fields); ``mode`` must be
-            one of independent, comm, full; the run's seed is ``args.seed``.
+        args: a :class:`TrainConfig`, or any namespace with some of its fields (the course
+            skeleton's works); ``mode`` one of independent, comm, full (missing or ``all``
+            means full); the run's seed is ``args.seed``; outputs go to
+            ``<args.output_dir>/agent_models`` and ``/training_logs`` (default ``results``).
     """
 
     def __init__(self, env: MultiAgentEnv, args: Any) -> None:
-        known = {f.name for f in fields(TrainConfig)}
-        cfg = (
-            args
-            if isinstance(args, TrainConfig)
-            else TrainConfig(**{k: v for k, v in vars(args).items() if k in known})
-        )
-        self.cfg = cfg.validate()
+        cfg = self.cfg = config_from(args)
         if cfg.mode not in ("independent", "comm", "full"):
             raise ValueError(f"a trainer trains one mode, got mode={cfg.mode!r}")
         self.mode, self.seed, self.env = cfg.mode, cfg.seed, env
+        self.name = f"{cfg.mode}_seed{cfg.seed}"
+        output_dir = Path(cfg.output_dir)
+        self.models_dir, self.logs_dir = output_dir / "agent_models", output_dir / "training_logs"
         # Seeding: the networks' initial weights, message noise, exploration, replay
         # sampling and start positions all derive from the one run seed.
         torch.manual_seed(self.seed)
         self.rng = np.random.default_rng(self.seed)
         self.noise_rng = torch.Generator().manual_seed(self.seed)
 
-        def make_env(n_envs: int, seed: int | None) -> VectorMultiAgentEnv:
-            return VectorMultiAgentEnv(
-                n_envs,
-                grid=env.grid,
-                obs_window=env.obs_window,
-                max_steps=env.max_steps,
-                seed=seed,
-                reward_mode=cfg.reward_mode,
-            )
-
-        self._make_env = make_env
-        self.rollout = Rollout.start(make_env(cfg.num_envs, self.seed))
-        self._episode_rollout: Rollout | None = None  # for train_episode()
+        self.rollout = Rollout.start(self.make_vector_env(cfg.num_envs, self.seed))
         self.obs_dim = self.rollout.env.obs_dim
+        self.mask = torch.tensor(observation_mask(self.mode, self.obs_dim))
         self.online = PairedQNetworks(self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, cfg.dueling)
-        self.target = copy.deepcopy(self.online).requires_grad_(False)
-        self.optimizer = torch.optim.Adam(self.online.parameters(), lr=cfg.lr)
+        self.target = PairedQNetworks(self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, cfg.dueling)
+        self.target.load_state_dict(self.online.state_dict())
+        self.target.requires_grad_(False)
+        self.optimizer = FlatAdam(self.online.flat, lr=cfg.lr)  # = torch.optim.Adam, faster
         buffer_class = PrioritizedReplayBuffer if cfg.prioritized else ReplayBuffer
-        self.buffer = buffer_class(cfg.buffer_size, seed=self.seed)
+        self.replay_buffer = buffer_class(cfg.buffer_size, seed=self.seed)
         self.dial = cfg.comm_learning == "dial" and self.mode != "independent"
+        self.fast_gradient = (
+            None
+            if cfg.dueling
+            else FastTDGradient(
+                self.online, self.target, self.mask, cfg.gamma, self.dial, cfg.comm_noise,
+                self.noise_rng, weighted=cfg.prioritized,
+            )
+        )  # fmt: skip
+        self._batches: dict[tuple, tuple[TransitionBatch, dict[str, np.ndarray]]] = {}
+        self.epsilon = cfg.epsilon_start
         self.env_steps = self.episodes = self.updates = 0
-        self._update_credit = 0.0
+        self.last_td_errors: torch.Tensor | None = None  # (2, B) of the last update
+        self.last_indices: np.ndarray | None = None  # replay slots of the last update
         self.recent_returns: deque[float] = deque(maxlen=100)
         self.recent_successes: deque[bool] = deque(maxlen=100)
         self.log: list[dict[str, Any]] = []
         self._losses: list[float] = []
-        self.best_score, self.best_env_steps = -1.0, 0
-        self._best_weights = self.online.flat.detach().clone()
         self._mean_qs: list[float] = []
+        self.best_score, self.best_env_steps = -math.inf, 0
+        self.best_selection: dict[str, float] = {}
+        self._best_state = {k: v.clone() for k, v in self.online.state_dict().items()}
+        self._episode_rollout: Rollout | None = None  # for train_episode()
 
-    # ------------------------------------------------------------------ networks
+    # ------------------------------------------------------------------ acting
+    def make_vector_env(self, n_envs: int, seed: int | None) -> VectorMultiAgentEnv:
+        """``n_envs`` copies of the training map with the reward the trainer learns from."""
+        return VectorMultiAgentEnv(
+            n_envs,
+            grid=self.env.grid,
+            obs_window=self.env.obs_window,
+            max_steps=self.env.max_steps,
+            seed=seed,
+            reward_mode=self.cfg.reward_mode,
+        )
+
     @property
     def network_A(self) -> torch.nn.Module:
         """Agent A's network as a standalone AgentDQN / DuelingDQN (a snapshot)."""
@@ -125,20 +176,17 @@ class MultiAgentTrainer:
     def network_B(self) -> torch.nn.Module:
         return self.online.agent(1)
 
-    def _masked(self, obs: torch.Tensor) -> torch.Tensor:
-        return apply_observation_mask(obs, self.mode)
-
-    def _act(
+    def act(
         self, obs: np.ndarray, epsilon: float, rng: np.random.Generator, noisy_messages: bool
     ) -> tuple[np.ndarray, np.ndarray]:
         """obs (N, 2, D) -> ε-greedy actions (N, 2) int64 and messages (N, 2) float32."""
         with torch.no_grad():
-            q_values, logits = self.online(self._masked(torch.from_numpy(obs).transpose(0, 1)))
+            q_values, logits = self.online(torch.from_numpy(obs).transpose(0, 1) * self.mask)
             if noisy_messages and self.cfg.comm_noise > 0:
                 logits = logits + self.cfg.comm_noise * torch.randn(
                     logits.shape, generator=self.noise_rng
                 )
-        actions = q_values.argmax(dim=-1).T.numpy()
+        actions = q_values.max(dim=-1).indices.T.numpy()
         explore = rng.random(actions.shape) < epsilon
         actions = np.where(explore, rng.integers(0, NUM_ACTIONS, actions.shape), actions)
         return actions, torch.sigmoid(logits[..., 0]).T.numpy()
@@ -146,8 +194,8 @@ class MultiAgentTrainer:
     def select_action(
         self, state: np.ndarray, network: torch.nn.Module, epsilon: float
     ) -> tuple[int, float]:
-        """ε-greedy action and message of one agent: ``state`` (11,) raw observation."""
-        masked = apply_observation_mask(torch.as_tensor(state, dtype=torch.float32), self.mode)
+        """ε-greedy action and message of one agent: ``state`` (obs_dim,) raw observation."""
+        masked = torch.as_tensor(state, dtype=torch.float32) * self.mask
         with torch.no_grad():
             q_values, comm = network(masked.unsqueeze(0))
         action = int(q_values.argmax(dim=1).item())
@@ -158,232 +206,264 @@ class MultiAgentTrainer:
     def policy(self, epsilon: float = 0.0, seed: int = EVAL_SEED) -> PolicyFn:
         """The current greedy/ε-greedy policy as a function for :func:`rollout.run_episodes`."""
         rng = np.random.default_rng(seed)
-        return lambda obs, positions: self._act(obs, epsilon, rng, noisy_messages=False)
+        return lambda obs, positions: self.act(obs, epsilon, rng, noisy_messages=False)
 
-    # ------------------------------------------------------------------ experience
-    def _progress(self) -> float:
+    # ------------------------------------------------------------------ learning
+    def store(
+        self, rollout: Rollout, actions: np.ndarray, messages: np.ndarray,
+        rewards: np.ndarray, next_obs: np.ndarray, terminated: np.ndarray,
+    ) -> None:  # fmt: skip
+        """Push N joint transitions; with each, the observations one step earlier (DIAL).
+        ``next_obs`` is the true next observation also where an episode was cut off."""
+        fields = dict(
+            state_A=rollout.obs[:, 0], state_B=rollout.obs[:, 1],
+            action_A=actions[:, 0], action_B=actions[:, 1],
+            comm_A=messages[:, 0], comm_B=messages[:, 1], reward=rewards,
+            next_state_A=next_obs[:, 0], next_state_B=next_obs[:, 1], done=terminated,
+        )  # fmt: skip
+        if not len(self.replay_buffer) or "prev_state_A" in self.replay_buffer.field_names:
+            # (A buffer first filled by hand holds the ten fields only.)
+            fields |= dict(
+                prev_state_A=rollout.prev_obs[:, 0],
+                prev_state_B=rollout.prev_obs[:, 1],
+                has_prev=rollout.has_prev,
+            )
+        self.replay_buffer.push_batch(**fields)
+
+    def sample(self, batch_size: int) -> TransitionBatch:
+        """A batch from the replay buffer, in tensors reused from update to update."""
+        stored = self.replay_buffer.field_names
+        if (batch_size, stored) not in self._batches:
+            batch = TransitionBatch.empty(batch_size, self.obs_dim)
+            self._batches = {(batch_size, stored): (batch, batch.buffer_views(stored))}
+        batch, views = self._batches[(batch_size, stored)]
+        _, weights, self.last_indices = self.replay_buffer.sample_batch(batch_size, out=views)
+        if self.cfg.prioritized:
+            batch.weights.copy_(torch.from_numpy(weights))
+        return batch
+
+    def td_loss(self, batch: TransitionBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The Huber TD loss, summed over both agents (the assignment's L = L_A + L_B).
+
+        Returns (loss with gradient, TD errors δ (2, B), Q(s, a) (2, B)), the last two
+        detached. Terminal only when both reached the target; Double-DQN target."""
+        obs, next_obs = batch.obs * self.mask, batch.next_obs * self.mask
+        if self.dial:
+            obs, next_obs = self.splice_messages(batch, obs, next_obs)
+        with torch.no_grad():  # y = r + γ (1 − done) Q_target(s', argmax_a Q_online(s', a))
+            best_next = self.online(next_obs)[0].max(dim=-1, keepdim=True).indices
+            next_value = self.target(next_obs)[0].gather(-1, best_next)[..., 0]
+            target = batch.reward + self.cfg.gamma * (1.0 - batch.done) * next_value
+        q_taken = self.online(obs)[0].gather(-1, batch.actions.unsqueeze(-1))[..., 0]
+        per_sample = F.smooth_l1_loss(q_taken, target, reduction="none")  # (2, B)
+        loss = (per_sample * batch.weights).mean(dim=1).sum()
+        return loss, (q_taken - target).detach(), q_taken.detach()
+
+    def splice_messages(
+        self, batch: TransitionBatch, obs: torch.Tensor, next_obs: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """DIAL: replace the incoming messages (element w²) of masked ``obs`` and
+        ``next_obs`` (2, B, D) by recomputed ones.
+
+        At time t agent A received the message B sent at t-1, computed from B's
+        observation at t-1 (``prev_obs[1]``). Recomputing it with B's online network,
+        with gradient and with noise on the logit, lets A's TD loss train B's message
+        head (and vice versa). Where no previous observation is stored (an episode start,
+        or a transition pushed by hand) the stored message stays. The message in the next
+        observation comes from the partner's target network on ``obs``, without gradient.
+        """
+        m = self.obs_dim - 2
+        _, logits = self.online(batch.prev_obs * self.mask)
+        if self.cfg.comm_noise > 0:
+            noise = torch.randn(logits.shape, generator=self.noise_rng)
+            logits = logits + self.cfg.comm_noise * noise
+        has_prev = batch.has_prev.view(1, -1, 1) > 0
+        received = torch.where(has_prev, torch.sigmoid(logits).flip(0), obs[..., m : m + 1])
+        with torch.no_grad():
+            next_received = torch.sigmoid(self.target(obs)[1]).flip(0)
+
+        def with_message(x: torch.Tensor, message: torch.Tensor) -> torch.Tensor:
+            return torch.cat([x[..., :m], message, x[..., m + 1 :]], dim=-1)
+
+        return with_message(obs, received), with_message(next_obs, next_received)
+
+    def update_networks(self, batch_size: int) -> float:
+        """One gradient step of both agents on a sampled batch; returns the loss (0.0 while
+        the buffer holds fewer than ``batch_size`` transitions)."""
+        if len(self.replay_buffer) < batch_size:
+            return 0.0
+        batch = self.sample(batch_size)
+        if self.fast_gradient is not None:  # the gradient of td_loss, written by hand
+            loss, self.last_td_errors, mean_q = self.fast_gradient(batch)
+        else:
+            self.optimizer.zero_grad()
+            loss_tensor, self.last_td_errors, q_taken = self.td_loss(batch)
+            loss_tensor.backward()
+            loss, mean_q = float(loss_tensor.detach()), float(q_taken.mean())
+        self.online.clip_grad_norm_(self.cfg.max_grad_norm)
+        self.optimizer.step()
+        self.updates += 1
+        self._losses.append(loss)
+        self._mean_qs.append(mean_q)
+        return loss
+
+    # ------------------------------------------------------------------ schedules
+    def progress(self) -> float:
         """Fraction of the training budget spent, in [0, 1]."""
         cfg = self.cfg
-        spent = (
-            self.episodes / cfg.num_episodes
-            if cfg.num_episodes > 0
-            else (self.env_steps / cfg.total_steps)
-        )
-        return min(1.0, spent)
+        if cfg.num_episodes > 0:
+            return min(1.0, self.episodes / cfg.num_episodes)
+        return min(1.0, self.env_steps / cfg.total_steps)
 
-    def epsilon(self) -> float:
-        """With epsilon_decay > 0 (the skeleton's factor): epsilon_start * decay^episodes,
-        floored at epsilon_end; else linear from epsilon_start to epsilon_end over the first
-        epsilon_fraction of the run."""
+    def next_epsilon(self, finished_episodes: int) -> float:
+        """ε after this step: with ``epsilon_decay`` > 0 the skeleton's multiplicative decay
+        per finished episode, ε <- max(ε_end, ε · decay); otherwise linear from
+        ``epsilon_start`` to ``epsilon_end`` over the first ``epsilon_fraction`` of the run."""
         cfg = self.cfg
         if cfg.epsilon_decay > 0:
-            return max(cfg.epsilon_end, cfg.epsilon_start * cfg.epsilon_decay**self.episodes)
-        fraction = min(1.0, self._progress() / cfg.epsilon_fraction)
+            return max(cfg.epsilon_end, self.epsilon * cfg.epsilon_decay**finished_episodes)
+        fraction = min(1.0, self.progress() / cfg.epsilon_fraction)
         return cfg.epsilon_start + fraction * (cfg.epsilon_end - cfg.epsilon_start)
 
     def learning_rate(self) -> float:
         """Linear from lr to lr * lr_end_factor over the run."""
-        factor = 1.0 + self._progress() * (self.cfg.lr_end_factor - 1.0)
-        return self.cfg.lr * factor
+        return self.cfg.lr * (1.0 + self.progress() * (self.cfg.lr_end_factor - 1.0))
 
-    def _collect_step(self, rollout: Rollout) -> tuple[np.ndarray, np.ndarray]:
-        """One step of every copy; store the transitions. Returns (returns, successes) of
-        the episodes that finished."""
-        actions, messages = self._act(rollout.obs, self.epsilon(), self.rng, noisy_messages=True)
-        next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
-        final_obs = info["final_obs"]
-        # Only "both on target" ends an episode for learning; the time limit is a cut-off.
-        self.buffer.push_batch(
-            state_A=rollout.obs[:, 0],
-            state_B=rollout.obs[:, 1],
-            action_A=actions[:, 0],
-            action_B=actions[:, 1],
-            comm_A=messages[:, 0],
-            comm_B=messages[:, 1],
-            reward=rewards,
-            next_state_A=final_obs[:, 0],
-            next_state_B=final_obs[:, 1],
-            done=terminated,
-            prev_state_A=rollout.prev_obs[:, 0],
-            prev_state_B=rollout.prev_obs[:, 1],
-            has_prev=rollout.has_prev,
-        )
-        finished = terminated | truncated
-        rollout.returns += rewards
-        outcome = rollout.returns[finished].copy(), terminated[finished].copy()
-        rollout.returns[finished] = 0.0
-        rollout.prev_obs = np.where(finished[:, None, None], 0.0, rollout.obs).astype(np.float32)
-        rollout.has_prev = ~finished
-        rollout.obs = next_obs
-        self.env_steps += rollout.env.n_envs
-        self.episodes += int(finished.sum())
-        self.recent_returns.extend(outcome[0].tolist())
-        self.recent_successes.extend(outcome[1].tolist())
-        self._learn(rollout.env.n_envs)
-        return outcome
-
-    def _learn(self, new_env_steps: int) -> None:
-        """Run updates at the configured ratio of updates_per_step per num_envs env steps."""
-        if self.env_steps < self.cfg.learning_starts:
-            return
-        self._update_credit += new_env_steps * self.cfg.updates_per_step / self.cfg.num_envs
-        while self._update_credit >= 1.0:
-            self._update_credit -= 1.0
-            self._losses.append(self.update_networks(self.cfg.batch_size))
-
-    # ------------------------------------------------------------------ learning
-    def update_networks(self, batch_size: int) -> float:
-        """One gradient step on a sampled batch; returns the loss (sum over both agents)."""
-        batch, weights, indices = self.buffer.sample_batch(batch_size)
-        per_agent, td_errors, q_taken = self.td_losses(batch, weights)
-        loss = per_agent.sum()  # the assignment's L = L_A + L_B
-        for group in self.optimizer.param_groups:
-            group["lr"] = self.learning_rate()
-        self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(self.online.parameters(), self.cfg.max_grad_norm)
-        self.optimizer.step()
-        self.updates += 1
-        if self.updates % self.cfg.target_update == 0:
-            self.target.load_state_dict(self.online.state_dict())
-        if self.cfg.prioritized:  # one priority per joint transition: the larger TD error
-            self.buffer.update_priorities(indices, td_errors.max(dim=0).values.numpy() + 1e-6)
-        self._mean_qs.append(float(q_taken.mean()))
-        return float(loss.detach())
-
-    def td_losses(
-        self, batch: dict[str, np.ndarray], weights: np.ndarray
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Huber TD losses of a batch of B joint transitions.
-
-        Returns (loss per agent [2] with gradient, |TD error| [2, B], Q(s, a) [2, B]), the
-        latter two detached. ``weights`` [B] are importance weights (ones without PER).
-        """
-        t = {name: torch.from_numpy(value) for name, value in batch.items()}
-        obs = torch.stack([t["state_A"], t["state_B"]])  # (2, B, D)
-        next_obs = torch.stack([t["next_state_A"], t["next_state_B"]])
-        actions = torch.stack([t["action_A"], t["action_B"]]).unsqueeze(-1)  # (2, B, 1)
-        reward, not_done = t["reward"], 1.0 - t["done"]  # (B,)
-
-        online, target_weights = self.online.weights(), self.target.weights()
-        if self.dial:
-            obs, next_obs = self._splice_messages(obs, next_obs, t, online, target_weights)
-        with torch.no_grad():
-            next_q_online, _ = self.online(self._masked(next_obs), online)
-            best_next = next_q_online.argmax(dim=-1, keepdim=True)  # Double DQN
-            next_q_target, _ = self.target(self._masked(next_obs), target_weights)
-            next_value = next_q_target.gather(-1, best_next)[..., 0]
-            target = reward + self.cfg.gamma * not_done * next_value
-        q_values, _ = self.online(self._masked(obs), online)
-        q_taken = q_values.gather(-1, actions)[..., 0]  # (2, B)
-        per_sample = F.smooth_l1_loss(q_taken, target, reduction="none")
-        per_agent = (per_sample * torch.from_numpy(weights)).mean(dim=1)
-        return per_agent, (q_taken - target).abs().detach(), q_taken.detach()
-
-    def _splice_messages(
-        self,
-        obs: torch.Tensor,
-        next_obs: torch.Tensor,
-        t: dict[str, torch.Tensor],
-        online: tuple[torch.Tensor, ...],
-        target: tuple[torch.Tensor, ...],
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """DIAL: replace the stored incoming messages (element 9) by recomputed ones.
-
-        At time t agent A received the message B sent at t-1, computed from B's
-        observation at t-1 (``prev_state_B``). Recomputing it with B's online network,
-        with gradient and with noise on the logit, lets A's TD loss train B's message
-        head (and vice versa). The message in the next observation (sent at t from the
-        stored observations) comes from the partner's target network, without gradient.
-        """
-        prev_obs = torch.stack([t["prev_state_A"], t["prev_state_B"]])
-        _, logits = self.online(self._masked(prev_obs), online)
-        if self.cfg.comm_noise > 0:
-            logits = logits + self.cfg.comm_noise * torch.randn(
-                logits.shape, generator=self.noise_rng
-            )
-        received = torch.sigmoid(logits).flip(0) * t["has_prev"].float()[None, :, None]
-        with torch.no_grad():
-            _, next_logits = self.target(self._masked(obs), target)
-            next_received = torch.sigmoid(next_logits).flip(0)
-        splice = MESSAGE_INDEX
-
-        def with_message(x: torch.Tensor, message: torch.Tensor) -> torch.Tensor:
-            return torch.cat([x[..., :splice], message, x[..., splice + 1 :]], dim=-1)
-
-        return with_message(obs, received), with_message(next_obs, next_received)
-
-    # ------------------------------------------------------------------ loops
-    def train_episode(self) -> tuple[float, bool]:
-        """Play one episode in a single environment (learning as it goes);
-        returns (episode_reward, success)."""
-        if self._episode_rollout is None:
-            self._episode_rollout = Rollout.start(self._make_env(1, self.seed + 1))
-        while True:
-            returns, successes = self._collect_step(self._episode_rollout)
-            if len(returns):
-                return float(returns[0]), bool(successes[0])
-
-    def evaluate(
-        self, num_episodes: int = 10, epsilon: float = 0.0, seed: int = EVAL_SEED
-    ) -> tuple[float, float]:
-        """(mean reward, success rate) over fixed episodes (the test episodes by default)."""
-        env = self._make_env(min(num_episodes, 500), None)
-        summary = evaluate_policy(env, self.policy(epsilon), num_episodes, seed=seed)
-        return summary["mean_return"], summary["success_rate"]
-
-    def _done(self) -> bool:
+    def budget_spent(self) -> bool:
         cfg = self.cfg
         if cfg.num_episodes > 0:
             return self.episodes >= cfg.num_episodes
         return self.env_steps >= cfg.total_steps
 
-    def _log_row(self) -> dict[str, Any]:
-        """Evaluate on the validation episodes, remember the best weights, log a row."""
+    # ------------------------------------------------------------------ the algorithm
+    def train(self, progress: Callable[[dict[str, Any]], None] | None = None) -> list[dict]:
+        """Collect with the vectorised environments and learn until the budget is spent;
+        evaluate every ``eval_interval`` env steps (validation episodes), keep the best
+        weights, save the models and the log. Returns the log rows."""
+        cfg, rollout = self.cfg, self.rollout
+        self.start_log()
+        next_evaluation = 0
+        update_credit = 0.0
+        while not self.budget_spent():
+            if self.env_steps >= next_evaluation:
+                self.evaluate_and_log(progress)
+                next_evaluation += cfg.eval_interval
+            # 1. Act ε-greedily (messages with DIAL noise), 2. step all environment copies.
+            actions, messages = self.act(rollout.obs, self.epsilon, self.rng, noisy_messages=True)
+            next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
+            # 3. Store. Only "both on target" is terminal; the time limit is a cut-off.
+            self.store(rollout, actions, messages, rewards, info["final_obs"], terminated)
+            finished = terminated | truncated
+            self.recent_returns.extend(rollout.advance(next_obs, rewards, finished).tolist())
+            self.recent_successes.extend(terminated[finished].tolist())
+            self.env_steps += rollout.env.n_envs
+            self.episodes += int(finished.sum())
+            # 4. Update if due: updates_per_step per step of the num_envs copies.
+            if self.env_steps >= cfg.learning_starts:
+                update_credit += cfg.updates_per_step * rollout.env.n_envs / cfg.num_envs
+            while update_credit >= 1.0:
+                update_credit -= 1.0
+                self.update_networks(cfg.batch_size)
+                if cfg.prioritized:  # one priority per joint transition: the larger |δ|
+                    priorities = self.last_td_errors.abs().max(dim=0).values.numpy() + 1e-6
+                    self.replay_buffer.update_priorities(self.last_indices, priorities)
+                # 5. Target sync: a hard copy every target_update gradient updates.
+                if self.updates % cfg.target_update == 0:
+                    self.target.load_state_dict(self.online.state_dict())
+            # 6. Schedules.
+            self.epsilon = self.next_epsilon(int(finished.sum()))
+            for group in self.optimizer.param_groups:
+                group["lr"] = self.learning_rate()
+        # 7. Log the end, keep the best weights, save.
+        self.evaluate_and_log(progress)
+        if cfg.keep_best:
+            self.online.load_state_dict(self._best_state)
+        self.save_models()
+        return self.log
+
+    def train_episode(self) -> tuple[float, bool]:
+        """Play one episode in a single environment, learning as :meth:`train` does;
+        returns (episode_reward, success)."""
+        if self._episode_rollout is None:
+            self._episode_rollout = Rollout.start(self.make_vector_env(1, self.seed + 1))
+        rollout, cfg = self._episode_rollout, self.cfg
+        while True:
+            actions, messages = self.act(rollout.obs, self.epsilon, self.rng, noisy_messages=True)
+            next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
+            self.store(rollout, actions, messages, rewards, info["final_obs"], terminated)
+            finished = terminated | truncated
+            returns = rollout.advance(next_obs, rewards, finished)
+            self.env_steps += 1
+            if self.env_steps >= cfg.learning_starts:
+                self.update_networks(cfg.batch_size)
+                if self.updates % cfg.target_update == 0:
+                    self.target.load_state_dict(self.online.state_dict())
+            if finished[0]:
+                self.episodes += 1
+                self.epsilon = self.next_epsilon(1)
+                return float(returns[0]), bool(terminated[0])
+
+    # ------------------------------------------------------------------ evaluation, outputs
+    def evaluate(
+        self, num_episodes: int = 10, epsilon: float = 0.0, seed: int = EVAL_SEED
+    ) -> tuple[float, float]:
+        """(mean reward, success rate) over fixed episodes (the test episodes by default),
+        under the reward the trainer learns from."""
+        env = self.make_vector_env(min(num_episodes, 500), None)
+        summary = evaluate_policy(env, self.policy(epsilon), num_episodes, seed=seed)
+        return summary["mean_return"], summary["success_rate"]
+
+    def evaluate_and_log(self, progress: Callable[[dict[str, Any]], None] | None) -> None:
+        """Evaluate on the validation episodes, remember the best weights ("selection"),
+        append a row to the log and its CSV file."""
         episodes = self.cfg.eval_episodes
         greedy_return, greedy_success = self.evaluate(episodes, 0.0, VALIDATION_SEED)
         eps_return, eps_success = self.evaluate(episodes, EVAL_EPSILON, VALIDATION_SEED)
-        score = (greedy_success + eps_success) / 2
-        if score > self.best_score:
-            self.best_score, self.best_env_steps = score, self.env_steps
-            self._best_weights = self.online.flat.detach().clone()
-        row = {
-            "env_steps": self.env_steps,
-            "episodes": self.episodes,
-            "updates": self.updates,
-            "epsilon": round(self.epsilon(), 6),
-            "loss": float(np.mean(self._losses)) if self._losses else math.nan,
-            "mean_q": float(np.mean(self._mean_qs)) if self._mean_qs else math.nan,
-            "train_return": float(np.mean(self.recent_returns))
-            if self.recent_returns
-            else math.nan,
-            "train_success": float(np.mean(self.recent_successes))
-            if self.recent_successes
-            else math.nan,
-            "eval_success_greedy": greedy_success,
-            "eval_success_eps": eps_success,
-            "eval_return_greedy": greedy_return,
-            "eval_return_eps": eps_return,
-        }
+        selection = {"greedy": greedy_success, "eps": eps_success}
+        if self.cfg.select_by == "return":
+            selection["score"] = (greedy_return + eps_return) / 2
+        else:
+            selection["score"] = (greedy_success + eps_success) / 2
+        if selection["score"] > self.best_score:
+            self.best_score, self.best_env_steps = selection["score"], self.env_steps
+            self.best_selection = selection
+            self._best_state = {k: v.clone() for k, v in self.online.state_dict().items()}
+
+        def mean(values: Any) -> float:
+            return float(np.mean(values)) if len(values) else math.nan
+
+        row = dict(
+            env_steps=self.env_steps, episodes=self.episodes, updates=self.updates,
+            epsilon=round(self.epsilon, 6), loss=mean(self._losses), mean_q=mean(self._mean_qs),
+            train_return=mean(self.recent_returns), train_success=mean(self.recent_successes),
+            eval_success_greedy=greedy_success, eval_success_eps=eps_success,
+            eval_return_greedy=greedy_return, eval_return_eps=eps_return,
+        )  # fmt: skip
         self._losses, self._mean_qs = [], []
         self.log.append(row)
-        return row
-
-    def train(self, progress: Callable[[dict[str, Any]], None] | None = None) -> list[dict]:
-        """Collect with the vectorised environments and learn until the budget is spent.
-        Evaluates every ``eval_interval`` env steps; returns the log rows."""
-        next_eval = 0
-        while not self._done():
-            if self.env_steps >= next_eval:
-                row = self._log_row()
-                next_eval += self.cfg.eval_interval
-                if progress:
-                    progress(row)
-            self._collect_step(self.rollout)
-        row = self._log_row()
+        with open(self.log_path, "a", newline="", encoding="utf-8") as handle:
+            csv.DictWriter(handle, LOG_FIELDS, lineterminator="\n").writerow(row)
         if progress:
             progress(row)
-        if self.cfg.keep_best:
-            with torch.no_grad():
-                self.online.flat.copy_(self._best_weights)
-        return self.log
+
+    @property
+    def log_path(self) -> Path:
+        return self.logs_dir / f"{self.name}.csv"
+
+    def start_log(self) -> None:
+        """Create the log file with its header (replacing an older one)."""
+        self.logs_dir.mkdir(parents=True, exist_ok=True)
+        with open(self.log_path, "w", newline="", encoding="utf-8") as handle:
+            csv.DictWriter(handle, LOG_FIELDS, lineterminator="\n").writeheader()
+
+    def save_models(self) -> list[Path]:
+        """Export both agents (TorchScript, mask inside) as ``<mode>_seed<seed>_agent_X.pt``."""
+        return [
+            export_policy(
+                self.online.agent(index), self.mode, self.models_dir / f"{self.name}_agent_{a}.pt"
+            )
+            for index, a in enumerate("AB")
+        ]
+
+
+__all__ = ["MultiAgentTrainer", "apply_observation_mask", "config_from"]

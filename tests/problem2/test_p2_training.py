@@ -47,14 +47,24 @@ def tiny_config(*extra: str) -> TrainConfig:
     return parse_config([*TINY, *extra])
 
 
+def collect(trainer: train.MultiAgentTrainer, steps: int) -> None:
+    """Play ``steps`` vector steps with the trainer's ε and store them, without learning
+    (the first three steps of ``train()``'s loop)."""
+    rollout = trainer.rollout
+    for _ in range(steps):
+        actions, messages = trainer.act(rollout.obs, trainer.epsilon, trainer.rng, True)
+        next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
+        trainer.store(rollout, actions, messages, rewards, info["final_obs"], terminated)
+        rollout.advance(next_obs, rewards, terminated | truncated)
+
+
 def filled_trainer(mode: str, *extra: str) -> train.MultiAgentTrainer:
     """A trainer whose buffer holds some experience (no updates yet)."""
     cfg = tiny_config(
         "--mode", mode, "--learning_starts", "100000000", "--total_steps", "1000000000", *extra
     )
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
-    for _ in range(20):
-        trainer._collect_step(trainer.rollout)
+    collect(trainer, 20)
     return trainer
 
 
@@ -169,25 +179,23 @@ def test_trainer_interface_methods() -> None:
 
 def test_time_limit_is_not_terminal_for_learning() -> None:
     trainer = filled_trainer("full")
-    stored = trainer.buffer.get(np.arange(len(trainer.buffer)))
+    stored = trainer.replay_buffer.get(np.arange(len(trainer.replay_buffer)))
     assert stored["done"].sum() == 0 or np.all(stored["reward"][stored["done"] == 1] == 10.0)
     # 20 steps x 16 envs, no episode lasts 50 steps: force a cut-off and check its label.
-    env = trainer.rollout.env
-    for _ in range(env.max_steps):
-        trainer._collect_step(trainer.rollout)
-    stored = trainer.buffer.get(np.arange(len(trainer.buffer)))
+    collect(trainer, trainer.rollout.env.max_steps)
+    stored = trainer.replay_buffer.get(np.arange(len(trainer.replay_buffer)))
     assert np.all((stored["done"] == 1) == (stored["reward"] == 10.0))
 
 
 def message_head_gradient(trainer: train.MultiAgentTrainer) -> torch.Tensor:
-    """Gradient of agent A's TD loss with respect to agent B's message head."""
-    batch, weights, _ = trainer.buffer.sample_batch(64)
+    """Gradient of the TD loss with respect to agent B's message head. B's message enters
+    only A's input, so this is the gradient of receiver A's loss."""
+    batch = trainer.sample(64)
     trainer.online.zero_grad(set_to_none=True)
-    per_agent, _, _ = trainer.td_losses(batch, weights)
-    per_agent[0].backward()  # receiver A's loss only
-    _, _, head_weight_grad, _ = torch.split(trainer.online.flat.grad, trainer.online._sizes)
-    head = head_weight_grad.view(trainer.online._shapes[2])
-    return head[1, -1]  # agent B, message row
+    loss, _, _ = trainer.td_loss(batch)
+    loss.backward()
+    _, _, head_weight_grad, _ = trainer.online.gradients()
+    return head_weight_grad[1, -1]  # agent B, message row
 
 
 @pytest.mark.parametrize("mode", ["comm", "full"])
@@ -231,12 +239,13 @@ def test_exported_models_reproduce_the_trainer_and_carry_their_mask(tmp_path: Pa
     for mode in ("independent", "comm", "full"):
         trainer = filled_trainer(mode)
         trainer.update_networks(32)
-        experiments.save_models(trainer, tmp_path, mode)
+        trainer.models_dir = tmp_path
+        trainer.save_models()
         obs = torch.from_numpy(trainer.rollout.obs.transpose(1, 0, 2).copy())  # (2, N, 11)
         with torch.no_grad():
             expected_q, expected_logit = trainer.online(train.apply_observation_mask(obs, mode))
         for index, agent in enumerate("AB"):
-            model = jit_load(tmp_path / f"{mode}_agent_{agent}.pt")
+            model = jit_load(tmp_path / f"{mode}_seed641_agent_{agent}.pt")
             q_values, comm = model(obs[index])
             torch.testing.assert_close(q_values, expected_q[index])
             torch.testing.assert_close(comm, torch.sigmoid(expected_logit[index]))
@@ -277,7 +286,7 @@ def test_same_seed_same_logs_and_models_in_parallel_and_in_sequence(tmp_path: Pa
     assert logs[0] != logs[1]
 
 
-def test_full_agents_learn_on_a_small_map() -> None:
+def test_full_agents_learn_on_a_small_map(tmp_path: Path) -> None:
     """A 5 x 5 map, 30 k env steps (about 15 s): far above the random policy (about 3 %).
 
     The run is deterministic on one machine (0.93 here at ε = 0.05, 0.80 greedy); the bar
@@ -285,21 +294,27 @@ def test_full_agents_learn_on_a_small_map() -> None:
     flags = "--mode full --grid_size 5 --map_seed 3 --total_steps 30000 --num_envs 32"
     flags += " --learning_starts 2000 --eval_interval 5000 --epsilon_fraction 0.6 --batch_size 128"
     trainer = train.MultiAgentTrainer(
-        MultiAgentEnv(grid_size=(5, 5), seed=3), parse_config(flags.split())
+        MultiAgentEnv(grid_size=(5, 5), seed=3),
+        parse_config([*flags.split(), "--output_dir", str(tmp_path)]),
     )
     trainer.train()
     _, success = trainer.evaluate(num_episodes=500, epsilon=0.05)
-    random_success = evaluate_policy(trainer._make_env(500, None), random_policy(0), 500)[
-        "success_rate"
-    ]
+    eval_env = trainer.make_vector_env(500, None)
+    random_success = evaluate_policy(eval_env, random_policy(0), 500)["success_rate"]
     assert success >= 0.5 and success >= 5 * random_success, (success, random_success)
 
 
-def test_dueling_and_prioritized_variants_train() -> None:
-    trainer = filled_trainer("full", "--dueling", "--prioritized")
+def test_dueling_and_prioritized_variants_train(tmp_path: Path) -> None:
+    trainer = filled_trainer("full", "--dueling", "--prioritized", "--output_dir", str(tmp_path))
     assert isinstance(trainer.network_A, DuelingDQN)
-    priorities_before = trainer.buffer._tree.values(np.arange(len(trainer.buffer))).copy()
+    assert trainer.fast_gradient is None  # the dueling network learns through autograd
     for _ in range(3):
         assert np.isfinite(trainer.update_networks(32))
-    priorities_after = trainer.buffer._tree.values(np.arange(len(trainer.buffer)))
-    assert not np.array_equal(priorities_before, priorities_after)  # TD errors fed back
+    assert trainer.last_td_errors.shape == (2, 32)
+    # train() feeds the TD errors back as priorities.
+    cfg = tiny_config("--mode", "full", "--prioritized", "--output_dir", str(tmp_path))
+    trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
+    trainer.train()
+    stored = len(trainer.replay_buffer)
+    priorities = trainer.replay_buffer._tree.values(np.arange(stored))
+    assert trainer.updates > 0 and len(np.unique(priorities)) > 1

@@ -1,0 +1,160 @@
+"""The trainer used the way the course skeleton uses it: a Namespace of the skeleton's
+flags, transitions pushed by hand, any odd window and grid, files written by train()."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from models import export_policy, load_policy, observation_mask
+from multi_agent_env import MultiAgentEnv
+from train_config import TrainConfig
+
+from tests.conftest import load_problem_module
+
+train = load_problem_module("problem2", "train")
+
+pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.\\w+` is deprecated:DeprecationWarning")
+
+
+def skeleton_args(**changes: object) -> argparse.Namespace:
+    """Exactly the flags of the course skeleton's train.py."""
+    flags = dict(
+        grid_size=[10, 10], max_steps=50, num_episodes=4, batch_size=32, lr=1e-3, gamma=0.99,
+        epsilon_start=1.0, epsilon_end=0.05, epsilon_decay=0.995, hidden_dim=64,
+        target_update=100, mode="full", seed=641, save_freq=100,
+    )  # fmt: skip
+    return argparse.Namespace(**(flags | changes))
+
+
+@pytest.mark.parametrize("mode", [None, "all", "full"])
+def test_skeleton_namespace_trains_full_and_decays_epsilon_per_episode(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, mode: str | None
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    args = skeleton_args(mode=mode)
+    if mode is None:
+        del args.mode
+    trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), args)
+    assert trainer.mode == "full" and trainer.cfg.epsilon_decay == 0.995
+    reward, success = trainer.train_episode()
+    assert type(reward) is float and type(success) is bool
+    assert trainer.epsilon == pytest.approx(0.995)
+    trainer.train_episode()
+    assert trainer.epsilon == pytest.approx(0.995**2)
+    trainer.train()  # 4 episodes, then it saves under results/ of the current folder
+    assert trainer.episodes >= 4 and trainer.epsilon == pytest.approx(
+        max(0.05, 0.995**trainer.episodes)
+    )
+    for agent in "AB":
+        assert (tmp_path / "results" / "agent_models" / f"full_seed641_agent_{agent}.pt").is_file()
+    assert (tmp_path / "results" / "training_logs" / "full_seed641.csv").is_file()
+
+
+def test_linear_epsilon_over_epsilon_fraction(tmp_path: Path) -> None:
+    cfg = TrainConfig(
+        mode="comm", total_steps=6400, num_envs=64, epsilon_fraction=0.25, learning_starts=10**9,
+        eval_interval=10**9, eval_episodes=4, output_dir=str(tmp_path),
+    )  # fmt: skip
+    trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
+    trainer.env_steps = 800  # half of the first quarter
+    assert trainer.next_epsilon(0) == pytest.approx(1.0 - 0.5 * 0.95)
+    trainer.env_steps = 1600
+    assert trainer.next_epsilon(3) == pytest.approx(0.05)
+
+
+def test_epsilon_decay_outside_its_range_is_refused_with_its_meaning() -> None:
+    with pytest.raises(ValueError, match="multiplicative factor per episode"):
+        TrainConfig(epsilon_decay=1.5).validate()
+
+
+@pytest.mark.parametrize("mode", ["independent", "comm", "full"])
+def test_transitions_pushed_by_hand_train_in_every_mode(mode: str) -> None:
+    trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), skeleton_args(mode=mode))
+    rng = np.random.default_rng(0)
+
+    def push(count: int) -> None:
+        for _ in range(count):
+            state_a, state_b, next_a, next_b = rng.random((4, 11), dtype=np.float32)
+            trainer.replay_buffer.push(
+                state_a, state_b, int(rng.integers(5)), int(rng.integers(5)), rng.random(),
+                rng.random(), -0.1, next_a, next_b, False,
+            )  # fmt: skip
+
+    push(31)
+    assert trainer.update_networks(32) == 0.0 and trainer.updates == 0
+    push(1)
+    before = trainer.online.flat.detach().clone()
+    loss = trainer.update_networks(32)
+    assert type(loss) is float and loss > 0 and trainer.updates == 1
+    assert not torch.equal(before, trainer.online.flat.detach())
+    trainer.train_episode()  # the trainer's own transitions join the hand-filled buffer
+
+
+@pytest.mark.parametrize(("window", "grid"), [(5, (7, 9)), (7, (6, 6))])
+def test_any_odd_window_and_grid(tmp_path: Path, window: int, grid: tuple[int, int]) -> None:
+    env = MultiAgentEnv(grid_size=grid, obs_window=window, seed=3)
+    cfg = TrainConfig(
+        mode="full", total_steps=1024, num_envs=16, learning_starts=256, batch_size=32,
+        eval_interval=512, eval_episodes=8, output_dir=str(tmp_path),
+    )  # fmt: skip
+    trainer = train.MultiAgentTrainer(env, cfg)
+    trainer.train()
+    obs_dim = window**2 + 2
+    assert trainer.obs_dim == obs_dim and trainer.updates > 0
+    policy = load_policy(tmp_path / "agent_models" / "full_seed641_agent_A.pt")
+    q_values, comm = policy(torch.rand(3, obs_dim))
+    assert q_values.shape == (3, 5) and comm.shape == (3, 1)
+    # The masks follow the window: message at w², distance at w² + 1.
+    for mode, zeroed in (("independent", [obs_dim - 2, obs_dim - 1]), ("comm", [obs_dim - 1])):
+        assert np.flatnonzero(observation_mask(mode, obs_dim) == 0).tolist() == zeroed
+    masked = train.apply_observation_mask(np.ones((2, obs_dim), np.float32), "independent")
+    assert masked[:, -2:].sum() == 0 and masked[:, :-2].sum() == 2 * (obs_dim - 2)
+    network = trainer.network_A
+    exported = load_policy(export_policy(network, "comm", tmp_path / "comm.pt"))
+    x = torch.rand(4, obs_dim)
+    changed = x.clone()
+    changed[:, -1] += 1.0  # the distance is hidden from comm
+    torch.testing.assert_close(exported(x)[0], exported(changed)[0])
+
+
+def test_train_writes_models_and_appends_the_log_as_it_goes(tmp_path: Path) -> None:
+    cfg = TrainConfig(
+        mode="comm", seed=5, total_steps=1536, num_envs=16, learning_starts=512, batch_size=32,
+        eval_interval=512, eval_episodes=8, output_dir=str(tmp_path / "out"),
+    )  # fmt: skip
+    trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
+    seen_rows = []
+
+    def progress(row: dict) -> None:  # the file holds every row reported so far
+        with open(trainer.log_path, encoding="utf-8") as handle:
+            seen_rows.append(len(list(csv.DictReader(handle))))
+
+    log = trainer.train(progress)
+    assert seen_rows == list(range(1, len(log) + 1))
+    with open(tmp_path / "out" / "training_logs" / "comm_seed5.csv", encoding="utf-8") as handle:
+        rows = list(csv.DictReader(handle))
+    assert [int(row["env_steps"]) for row in rows] == [row["env_steps"] for row in log]
+    for agent in "AB":
+        assert (tmp_path / "out" / "agent_models" / f"comm_seed5_agent_{agent}.pt").is_file()
+
+
+def test_selection_by_return_keeps_the_checkpoint_with_the_best_validation_return(
+    tmp_path: Path,
+) -> None:
+    cfg = TrainConfig(
+        mode="full", total_steps=2048, num_envs=16, learning_starts=256, batch_size=32,
+        eval_interval=512, eval_episodes=16, select_by="return", output_dir=str(tmp_path),
+    )  # fmt: skip
+    trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
+    log = trainer.train()
+    scores = [(row["eval_return_greedy"] + row["eval_return_eps"]) / 2 for row in log]
+    best = int(np.argmax(scores))
+    assert trainer.best_selection["score"] == pytest.approx(scores[best])
+    assert trainer.best_env_steps == log[best]["env_steps"]
+    with pytest.raises(ValueError, match="select_by"):
+        TrainConfig(select_by="luck").validate()
