@@ -304,7 +304,8 @@ class PrioritizedReplayBuffer(ReplayBuffer):
 
     def update_priorities(self, indices: np.ndarray, priorities: np.ndarray) -> None:
         """Set the priorities (B,) of slots ``indices`` (B,), e.g. |TD error| + 1e-6.
-        Priorities must be positive and finite."""
+        Priorities must be positive and finite. A slot that a sample drew more than once
+        (sampling is with replacement) gets the largest of its priorities."""
         raw_indices = np.asarray(indices).reshape(-1)
         if raw_indices.dtype == np.bool_ or not (
             np.issubdtype(raw_indices.dtype, np.number) and np.all(np.mod(raw_indices, 1) == 0)
@@ -318,12 +319,11 @@ class PrioritizedReplayBuffer(ReplayBuffer):
             raise ValueError(f"indices must be stored slots in 0..{self._size - 1}")
         if not (np.isfinite(priorities).all() and (priorities > 0).all()):
             raise ValueError("priorities must be positive and finite")
-        # A sample may draw a slot twice; each repeat must carry the same priority.
-        unique, first, inverse = np.unique(indices, return_index=True, return_inverse=True)
-        if len(unique) != len(indices) and not np.array_equal(
-            priorities, priorities[first][inverse]
-        ):
-            raise ValueError("a repeated index must be given the same priority each time")
+        # A sample may draw a slot twice (with different TD errors under DIAL's noise).
+        unique, inverse = np.unique(indices, return_inverse=True)
+        largest = np.zeros(len(unique))
+        np.maximum.at(largest, inverse, priorities)
+        indices, priorities = unique, largest
         self._tree.update(indices, priorities**self.alpha)
         if len(priorities):
             self._max_priority = max(self._max_priority, float(priorities.max()))

@@ -55,7 +55,8 @@ def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndar
 def config_from(args: Any) -> TrainConfig:
     """A TrainConfig from a TrainConfig or any namespace (e.g. the course skeleton's, whose
     ``grid_size`` is a list and whose ``mode`` may be missing or ``all``: one trainer trains
-    ``full`` then). Unknown attributes are ignored; the map comes from the environment."""
+    ``full`` then; without ``output_dir`` it writes under ``results/`` of the current folder).
+    Unknown attributes are ignored; the map comes from the environment."""
     if isinstance(args, TrainConfig):
         settings = args.to_dict()
     else:
@@ -63,6 +64,8 @@ def config_from(args: Any) -> TrainConfig:
         settings = {k: v for k, v in vars(args).items() if k in known and v is not None}
     if settings.get("mode", "all") == "all":
         settings["mode"] = "full"
+    # Like the skeleton, a namespace without output_dir writes under ./results.
+    settings.setdefault("output_dir", "results")
     settings.pop("grid_size", None)  # the trainer trains on env's grid
     return TrainConfig(**settings).validate()
 

@@ -68,7 +68,6 @@ BAD_SETTINGS = [
     (["--buffer_size", "10"], "10"),
     (["--learning_starts", "0"], "0"),
     (["--learning_starts", "10", "--batch_size", "32"], "10"),
-    (["--learning_starts", "300000"], "300000"),
     (["--updates_per_step", "0"], "0"),
     (["--max_grad_norm", "0"], "0"),
     (["--max_grad_norm", "-1"], "-1"),

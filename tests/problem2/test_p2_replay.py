@@ -255,14 +255,14 @@ def test_capacity_must_be_a_positive_integer_and_is_named(capacity) -> None:
         ReplayBuffer(capacity=capacity)
 
 
-def test_update_priorities_needs_integer_indices_and_one_priority_per_slot() -> None:
+def test_update_priorities_needs_integer_indices_and_keeps_a_repeat_s_largest() -> None:
     buffer = PrioritizedReplayBuffer(capacity=10)
     buffer.push_batch(**batch_of(0, 3))
     with pytest.raises(ValueError, match="indices must be integers"):
         buffer.update_priorities([0.5, 1.0], [1.0, 1.0])
     with pytest.raises(ValueError, match="indices must be integers"):
         buffer.update_priorities([True], [1.0])
-    with pytest.raises(ValueError, match="same priority"):
-        buffer.update_priorities([1, 1], [1.0, 2.0])
-    buffer.update_priorities([1, 1, 2], [3.0, 3.0, 1.0])  # a slot drawn twice by sample()
-    assert buffer._tree.values(np.array([1]))[0] == pytest.approx(3.0**0.6)
+    buffer.update_priorities([1, 1, 2], [3.0, 5.0, 1.0])  # a slot drawn twice by sample()
+    assert buffer._tree.values(np.array([1]))[0] == pytest.approx(5.0**0.6)
+    buffer.update_priorities([1, 1], [2.0, 0.5])  # the largest of this update, not of all time
+    assert buffer._tree.values(np.array([1]))[0] == pytest.approx(2.0**0.6)

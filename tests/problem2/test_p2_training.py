@@ -121,7 +121,7 @@ def test_starter_flags_and_defaults() -> None:
         0.99,
         ["independent", "comm", "full"],
     )
-    assert cfg.run_seeds() == [641, 642, 643, 644, 645]
+    assert cfg.run_seeds() == list(range(641, 651))  # 10 seeds per mode
     dashed = parse_config(
         [
             "--num-episodes",
