@@ -76,11 +76,9 @@ def _evaluator(
     experiment: Experiment, epsilon: float, mode: str | None = None, seed: int | None = None, **kw
 ) -> MultiAgentEvaluator:
     settings = experiment.settings
-    env = MultiAgentEnv(
-        grid=experiment.grid,
-        max_steps=int(settings["max_steps"]),
-        reward_mode=settings["reward_mode"],
-    )
+    # Returns are reported under the assignment's reward (the env's default), whatever
+    # reward the agents were trained on; success does not depend on the reward.
+    env = MultiAgentEnv(grid=experiment.grid, max_steps=int(settings["max_steps"]))
     if mode is None:
         return MultiAgentEvaluator(env, epsilon=epsilon, **kw)
     models = load_model_pair(experiment.models_dir, mode, seed)

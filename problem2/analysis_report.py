@@ -91,7 +91,9 @@ def success_section(performance: dict) -> list[str]:
         f"{protocol['episodes_per_seed']} fixed test episodes per trained seed (start cells "
         f"from seed {protocol['evaluation_seed']}); ε = {protocol['conditions']['eps']}. "
         "Mean over training seeds with a 95 % percentile bootstrap CI over seeds; IQM = "
-        "interquartile mean over seeds. Returns of `per_step` runs use their own reward.",
+        "interquartile mean over seeds. Returns are under the assignment's reward (+10 both "
+        "on the target, +2 on each step with exactly one on it, −0.1 otherwise), whatever "
+        "reward the agents learned from.",
         "",
         *_table(SUCCESS_HEADER, rows),
         "",
