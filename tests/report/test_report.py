@@ -86,3 +86,11 @@ def test_cli_refuses_a_name_on_two_lines(capsys: pytest.CaptureFixture[str]) -> 
         build.parse_args(["--name", "Ada\nLovelace"])
     assert exit_info.value.code == 2
     assert "--name must be one line" in capsys.readouterr().err
+
+
+def test_the_reward_study_section_is_typeset_from_its_results_file() -> None:
+    assert (ROOT / build.OPTIONAL_INPUTS["reward-study"]).is_file()
+    found = json.loads(
+        typst.query(str(ROOT / build.MAIN), "<reward-figure>", **build.typst_options())
+    )
+    assert len(found) == 1
