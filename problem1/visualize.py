@@ -28,12 +28,12 @@ CELL_STYLE = {  # edge colour, tag in a large panel, legend entry
     "penalty": ("#d7191c", "PENALTY", "penalty cell: −5"),
     "start": ("#2b83ba", "START", "start"),
 }
-TAG_FONT = 9.5  # pt; every figure is drawn near its printed size
-VALUE_FONT = 10
+TAG_FONT = 8  # pt; every figure is drawn at the width the report places it (1:1)
+VALUE_FONT = 9
 SMALL_FONT = 8  # the smallest text in any figure
 REWARD_NOTE = (
-    "Entering a cell pays −0.1, a PENALTY cell −5, the GOAL +10 (episode ends); "
-    "black cells are obstacles."
+    "Entering a cell pays −0.1, a PENALTY cell −5, the GOAL +10\n"
+    "(episode ends); black cells are obstacles."
 )
 
 
@@ -123,11 +123,11 @@ class GridWorldVisualizer:
             self._draw_arrows(ax, np.asarray(policy), shift, compact)
         ax.set_xticks(range(n))
         ax.set_yticks(range(n))
-        font = SMALL_FONT if compact else 10
+        font = SMALL_FONT if compact else 9
         ax.tick_params(labelsize=font)
         ax.set_xlabel("column", fontsize=font)
         ax.set_ylabel("row", fontsize=font)
-        ax.set_title(title, fontsize=9 if compact else 12)
+        ax.set_title(title, fontsize=9 if compact else 10)
         return image
 
     def add_cell_legend(self, fig: Figure) -> None:
@@ -184,17 +184,18 @@ class GridWorldVisualizer:
         policy: np.ndarray | None = None,
     ) -> Figure:
         """Heatmap of ``values`` (S,) with the value in each cell and optional policy arrows."""
-        fig = Figure(figsize=(6.2, 5.6), layout="constrained")
+        fig = Figure(figsize=(4.3, 4.0), layout="constrained")
         ax = fig.subplots()
         image = self.draw_grid(ax, values, policy, title)
         colour_bar = fig.colorbar(image, ax=ax, shrink=0.9)
-        colour_bar.set_label("V(s)  (expected discounted return)", fontsize=10)
+        colour_bar.set_label("V(s)  (expected discounted return)", fontsize=9)
+        colour_bar.ax.tick_params(labelsize=SMALL_FONT + 0.5)
         fig.supxlabel(REWARD_NOTE, fontsize=SMALL_FONT + 0.5)
         return fig
 
     def plot_policy(self, policy: np.ndarray, title: str = "Optimal policy") -> Figure:
         """Arrows of a deterministic policy (S,) on the map."""
-        fig = Figure(figsize=(4.8, 4.8), layout="constrained")
+        fig = Figure(figsize=(3.6, 3.6), layout="constrained")
         ax = fig.subplots()
         self.draw_grid(ax, None, policy, title)
         return fig
@@ -234,7 +235,7 @@ class GridWorldVisualizer:
     ) -> Figure:
         """Sup-norm change per sweep of both algorithms (log scale) with the contraction
         bound ``||x_{k+1} - x_k|| <= gamma^k ||x_1 - x_0||``."""
-        fig = Figure(figsize=(6.3, 3.8), layout="constrained")
+        fig = Figure(figsize=(4.3, 2.8), layout="constrained")
         ax = fig.subplots()
         for name, history, style in (
             ("value iteration", vi_history, "o-"),
@@ -258,11 +259,12 @@ class GridWorldVisualizer:
             ax.axhline(
                 epsilon, color="black", linewidth=0.8, label=f"stopping threshold ε = {epsilon:g}"
             )
-        ax.set_xlabel("sweep k")
-        ax.set_ylabel("sup-norm change  max |x_k − x_(k−1)|")
-        ax.set_title("Convergence of value iteration and Q-iteration")
+        ax.set_xlabel("sweep k", fontsize=9)
+        ax.set_ylabel("sup-norm change  max |x_k − x_(k−1)|", fontsize=9)
+        ax.set_title("Convergence of value iteration and Q-iteration", fontsize=10)
+        ax.tick_params(labelsize=8.5)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=9)
+        ax.legend(fontsize=8)
         return fig
 
     def create_comparison_figure(

@@ -1,7 +1,7 @@
 """Figures of Problem 2's evaluation: episode paths, the message per grid cell, the channel
 interventions and an animated episode. Figures use ``matplotlib.figure.Figure`` (no pyplot)
-and are written atomically. Static figures are ``PRINT_WIDTH`` inches wide, the width of
-an A4 page's text, with text of at least ``MIN_FONT`` points: legible when printed."""
+and are written atomically. Each static figure is drawn at the width (inches) at which the
+report places it (``WIDTHS``), with text of at least ``MIN_FONT`` points: legible when printed."""
 
 from __future__ import annotations
 
@@ -20,7 +20,13 @@ from matplotlib.figure import Figure
 
 AGENT_COLOURS = ("#1f77b4", "#d62728")  # A blue, B red
 AGENT_OFFSETS = (-0.12, 0.12)  # so that the two paths stay apart where they overlap
-PRINT_WIDTH = 6.5  # inches: an A4 page's text width, so figures print at about 1:1
+WIDTHS = {  # inches; report/*.typ places each figure at exactly this width, i.e. at 1:1
+    "trajectories": 4.2,
+    "message_heatmap": 6.5,
+    "interventions": 5.2,
+    "measures": 4.3,
+    "failure_decomposition": 4.3,
+}
 MIN_FONT = 9  # points, at print size
 FONT_SIZES = {
     "font.size": 10,
@@ -35,7 +41,7 @@ FONT_SIZES = {
 
 @contextmanager
 def legible() -> Iterator[None]:
-    """Font sizes for figures printed at ``PRINT_WIDTH``."""
+    """Font sizes for figures printed at their ``WIDTHS``."""
     from matplotlib import rc_context
 
     with rc_context(FONT_SIZES):
@@ -71,7 +77,7 @@ def plot_trajectories(
     """One row per mode (label, [successful episode, failed episode]); None draws an empty
     panel saying that no such episode occurred."""
     with legible():
-        fig = Figure(figsize=(PRINT_WIDTH, 3.4 * len(rows) + 0.6), layout="constrained")
+        fig = Figure(figsize=(WIDTHS["trajectories"], 2.45 * len(rows) + 0.9), layout="constrained")
         _draw_trajectories(fig, rows, grid)
         return save_figure(fig, path)
 
@@ -83,16 +89,17 @@ def _draw_trajectories(
     for (label, traces), row_axes in zip(rows, axes, strict=True):
         for ax, trace, kind in zip(row_axes, traces, ("successful", "failed"), strict=True):
             draw_map(ax, grid)
+            ax.set_xticks(range(0, grid.shape[1], 2))
             if trace is None:
-                ax.set_title(f"{label}:\nno {kind} episode")
+                ax.set_title(f"{label}:\nno {kind} episode", fontsize=MIN_FONT)
                 continue
             draw_paths(ax, trace)
             steps = f"{trace.length} step{'s' if trace.length != 1 else ''}"
             outcome = f"success in {steps}" if trace.success else "failure"
             detail = f" ({trace.description})" if trace.description else ""
-            ax.set_title(f"{label}:\n{outcome}{detail}")
-    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=4)
-    fig.suptitle("Representative episodes (A blue, B red; star: target; grey: obstacles)")
+            ax.set_title(f"{label}:\n{outcome}{detail}", fontsize=MIN_FONT)
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=2)
+    fig.suptitle("Representative episodes\n(A blue, B red; star: target; grey: obstacles)")
 
 
 def plot_message_heatmap(
@@ -101,7 +108,9 @@ def plot_message_heatmap(
     """One row per (label, mean message (2, H, W)); columns agent A and agent B. Cells an
     agent never sent from are light grey, obstacles dark grey, the target a white star."""
     with legible():
-        fig = Figure(figsize=(PRINT_WIDTH, 3.0 * len(panels) + 0.9), layout="constrained")
+        fig = Figure(
+            figsize=(WIDTHS["message_heatmap"], 3.0 * len(panels) + 0.9), layout="constrained"
+        )
         axes = np.atleast_2d(fig.subplots(len(panels), 2))
         image = None
         target_row, target_col = np.argwhere(grid == TARGET)[0]
@@ -130,7 +139,9 @@ def plot_interventions(modes: dict[str, dict], path: str | Path) -> Path:
     panels = [(mode, channel, entry) for mode, channels in modes.items()
               for channel, entry in channels.items()]  # fmt: skip
     with legible():
-        fig = Figure(figsize=(PRINT_WIDTH, 2.1 * len(panels) + 0.8), layout="constrained")
+        fig = Figure(
+            figsize=(WIDTHS["interventions"], 1.7 * len(panels) + 0.9), layout="constrained"
+        )
         axes = np.atleast_1d(fig.subplots(len(panels), 1, squeeze=False)[:, 0])
         for ax, (mode, channel, entry) in zip(axes, panels, strict=True):
             kinds = list(entry["greedy"]["delta_success"])
@@ -161,7 +172,7 @@ def plot_measures(modes: dict[str, dict], bins: str, path: str | Path) -> Path:
     statistics}}}) per mode, senders A and B, mean with its 95 % CI over seeds."""
     measures = list(next(iter(modes.values()))[bins])
     with legible():
-        fig = Figure(figsize=(PRINT_WIDTH, 1.5 * len(measures) + 1.0), layout="constrained")
+        fig = Figure(figsize=(WIDTHS["measures"], 0.95 * len(measures) + 1.2), layout="constrained")
         axes = fig.subplots(len(measures), 1, squeeze=False)[:, 0]
         rows = np.arange(len(modes))
         for ax, measure in zip(axes, measures, strict=True):
@@ -182,7 +193,7 @@ def plot_measures(modes: dict[str, dict], bins: str, path: str | Path) -> Path:
             ax.set_title(measure.replace("_", " "))
         axes[-1].set_xlabel(f"bits (message in {bins[1:]} bins; 95 % CI over seeds)")
         fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=2)
-        fig.suptitle("Communication measures (Lowe et al. 2019), greedy test episodes")
+        fig.suptitle("Communication measures (Lowe et al. 2019),\ngreedy test episodes")
         return save_figure(fig, path, dpi=200)
 
 
@@ -200,7 +211,10 @@ def plot_failure_decomposition(modes: dict[str, dict], path: str | Path) -> Path
                 per_seed = [0.0 if v is None else v for v in shares[kind]["per_seed"]]
                 bars.append(float(np.mean(failed * np.array(per_seed))))  # share of all episodes
     with legible():
-        fig = Figure(figsize=(PRINT_WIDTH, 0.45 * len(labels) + 1.6), layout="constrained")
+        fig = Figure(
+            figsize=(WIDTHS["failure_decomposition"], 0.25 * len(labels) + 1.6),
+            layout="constrained",
+        )
         ax = fig.subplots()
         rows = np.arange(len(labels))
         ax.barh(rows, navigation, color="#8172b3", label="navigation: an agent never reached it")
@@ -208,7 +222,7 @@ def plot_failure_decomposition(modes: dict[str, dict], path: str | Path) -> Path
                 label="timing: both reached it, never together")  # fmt: skip
         ax.set_yticks(rows, labels)
         ax.invert_yaxis()
-        ax.set_xlabel("share of test episodes that fail (mean over seeds)")
+        ax.set_xlabel("share of test episodes that fail\n(mean over seeds)")
         fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=1)
         fig.suptitle("Why episodes fail")
         return save_figure(fig, path, dpi=200)

@@ -334,7 +334,7 @@ def plot_study(study: dict, path: Path) -> None:
         for _, _, label, marker in optima
     ]
     with plt.rc_context({"font.size": 9, "legend.fontsize": 8}):
-        figure, axes = plt.subplots(1, 2, figsize=(6.5, 3.8), sharey=True, layout="constrained")
+        figure, axes = plt.subplots(1, 2, figsize=(4.9, 3.4), sharey=True, layout="constrained")
         for axis, condition in zip(axes, CONDITIONS, strict=True):
             for reward, modes in study.get("learned", {}).items():
                 for mode, entry in modes.items():
@@ -355,11 +355,11 @@ def plot_study(study: dict, path: Path) -> None:
                 )  # fmt: skip
             epsilon = study["protocol"]["conditions"][condition]
             axis.set_title("greedy" if condition == "greedy" else f"epsilon = {epsilon}")
-            axis.set_xlabel("mean return, assignment's reward")
+            axis.set_xlabel("mean return under\nthe assignment's reward")
             axis.grid(alpha=0.3)
         axes[0].set_ylabel("success rate (one point per seed)")
         axes[0].set_ylim(-0.03, 1.05)
-        figure.legend(handles=legend, loc="outside lower center", ncol=3, frameon=False)
+        figure.legend(handles=legend, loc="outside lower center", ncol=2, frameon=False)
         path.parent.mkdir(parents=True, exist_ok=True)
         figure.savefig(path, dpi=150, metadata={"Software": None})
         plt.close(figure)
