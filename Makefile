@@ -79,6 +79,7 @@ lint: $(DEV_STAMP)
 bench: $(RUNTIME_STAMP)
 	$(PY) bench/p1_scaling.py
 	$(PY) bench/p2_env_throughput.py
+	$(PY) bench/p2_update.py
 
 clean:
 	rm -rf $(VENV)
