@@ -92,12 +92,13 @@ def _parse_layout(layout: Sequence[str]) -> dict[str, Any]:
     return {"size": size, **cells}
 
 
-def _check_max_steps(max_steps: Any) -> int:
-    if isinstance(max_steps, bool) or not isinstance(max_steps, numbers.Integral):
-        raise ValueError(f"max_steps must be an integer >= 1, got {max_steps!r}")
-    if max_steps < 1:
-        raise ValueError(f"max_steps must be an integer >= 1, got {max_steps}")
-    return int(max_steps)
+def check_positive_integer(value: Any, name: str) -> int:
+    """``value`` as an int >= 1 (not a bool), else a ValueError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    if value < 1:
+        raise ValueError(f"{name} must be an integer >= 1, got {value}")
+    return int(value)
 
 
 class GridWorldEnv:
@@ -126,7 +127,7 @@ class GridWorldEnv:
             raise ValueError(f"prob_drift must be a number in [0, 0.5], got {prob_drift!r}")
         if not 0.0 <= prob_drift <= 0.5:
             raise ValueError(f"prob_drift must lie in [0, 0.5], got {prob_drift}")
-        self.max_steps = _check_max_steps(max_steps)
+        self.max_steps = check_positive_integer(max_steps, "max_steps")
         parsed = COURSE_MAP if layout is None else _parse_layout(layout)
         self.layout = layout_from_cells(parsed)
         self.grid_size: int = parsed["size"]

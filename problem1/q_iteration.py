@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-from tabular_model import DynamicProgrammingSolver, check_finite, check_max_iterations
+from environment import check_positive_integer
+from tabular_model import DynamicProgrammingSolver, check_finite
 
 
 class QIteration(DynamicProgrammingSolver):
@@ -15,7 +16,7 @@ class QIteration(DynamicProgrammingSolver):
 
     def solve(self, max_iterations: int = 1000) -> tuple[np.ndarray, int]:
         """Return ``(q_values (S, A), iterations)``; ``self.history`` holds each sweep's change."""
-        max_iterations = check_max_iterations(max_iterations)
+        max_iterations = check_positive_integer(max_iterations, "max_iterations")
         q_values = np.zeros((self.n_states, self.n_actions))
         self.history = []
         for _ in range(max_iterations):

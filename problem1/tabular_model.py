@@ -112,15 +112,6 @@ def check_finite(array: np.ndarray, name: str, shape: tuple[int, ...]) -> np.nda
     return array
 
 
-def check_max_iterations(max_iterations: object) -> int:
-    """``max_iterations`` as an int >= 1, else a ValueError naming it."""
-    if isinstance(max_iterations, bool) or not isinstance(max_iterations, numbers.Integral):
-        raise ValueError(f"max_iterations must be an integer >= 1, got {max_iterations!r}")
-    if max_iterations < 1:
-        raise ValueError(f"max_iterations must be an integer >= 1, got {max_iterations}")
-    return int(max_iterations)
-
-
 class DynamicProgrammingSolver:
     """What value iteration and Q-iteration share: the tabular model and the parameters.
     Each algorithm writes its own loop in ``solve``; ``history`` records the sup-norm

@@ -311,6 +311,17 @@ class MultiAgentTrainer:
         return loss
 
     # ------------------------------------------------------------------ schedules
+    def update_and_sync_target(self) -> None:
+        """One gradient update; with PER, the priorities it measured (one per joint
+        transition: the larger |δ| of the two agents); every ``target_update`` updates a
+        hard copy of the online into the target networks."""
+        self.update_networks(self.cfg.batch_size)
+        if self.cfg.prioritized:
+            priorities = self.last_td_errors.abs().max(dim=0).values.numpy() + 1e-6
+            self.replay_buffer.update_priorities(self.last_indices, priorities)
+        if self.updates % self.cfg.target_update == 0:
+            self.target.load_state_dict(self.online.state_dict())
+
     def progress(self) -> float:
         """Fraction of the training budget spent, in [0, 1]."""
         cfg = self.cfg
@@ -366,13 +377,8 @@ class MultiAgentTrainer:
                 update_credit += cfg.updates_per_step * rollout.env.n_envs / cfg.num_envs
             while update_credit >= 1.0:
                 update_credit -= 1.0
-                self.update_networks(cfg.batch_size)
-                if cfg.prioritized:  # one priority per joint transition: the larger |δ|
-                    priorities = self.last_td_errors.abs().max(dim=0).values.numpy() + 1e-6
-                    self.replay_buffer.update_priorities(self.last_indices, priorities)
                 # 5. Target sync: a hard copy every target_update gradient updates.
-                if self.updates % cfg.target_update == 0:
-                    self.target.load_state_dict(self.online.state_dict())
+                self.update_and_sync_target()
             # 6. Schedules.
             self.epsilon = self.next_epsilon(int(finished.sum()))
             for group in self.optimizer.param_groups:
@@ -398,9 +404,7 @@ class MultiAgentTrainer:
             returns = rollout.advance(next_obs, rewards, finished)
             self.env_steps += 1
             if self.env_steps >= cfg.learning_starts:
-                self.update_networks(cfg.batch_size)
-                if self.updates % cfg.target_update == 0:
-                    self.target.load_state_dict(self.online.state_dict())
+                self.update_and_sync_target()
             if finished[0]:
                 self.episodes += 1
                 self.epsilon = self.next_epsilon(1)
