@@ -3,7 +3,7 @@ policy) on one map, built on the vectorised environment. Re-exported by ``evalua
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -95,22 +95,30 @@ class MultiAgentEvaluator:
         interventions: list[dict[int, np.ndarray | None]] | None = None,
         record: bool = False,
         setting: EvaluationSetting | None = None,
+        policies: list[PolicyFactory] | None = None,
     ) -> list[EpisodeResults]:
         """The same ``num_episodes`` test episodes (start cells from ``self.seed``) once per
-        block, all blocks stepped together: block k explores with ``epsilons[k]`` and, if
-        given, feeds ``interventions[k]`` ({observation index: table (E, T, 2)}, see
-        ``analysis_interventions``). Exploration uses common random numbers: two blocks
-        differ only by their exploration rate and intervention."""
+        block, all blocks stepped together: block k explores with ``epsilons[k]``, if given
+        feeds ``interventions[k]`` ({observation index: table (E, T, 2)}, see
+        ``analysis_interventions``) and, if given, acts with ``policies[k]`` (default: this
+        evaluator's policy; e.g. the models of other seeds, run beside it in one batch).
+        Exploration uses common random numbers: two blocks differ only by their policy,
+        exploration rate and intervention."""
         setting = setting or self.setting
         blocks = len(epsilons)
         interventions = interventions or [{} for _ in range(blocks)]
+        policies = policies or [self.policy_factory] * blocks
+        if len(policies) != blocks:
+            raise ValueError(
+                f"policies must have {blocks} entries (one a block), got {len(policies)}"
+            )
         starts = start_positions(setting, num_episodes, self.seed)
         per_group = max(1, MAX_BATCH // num_episodes)
         results: list[EpisodeResults] = []
         for first in range(0, blocks, per_group):
             group = range(first, min(first + per_group, blocks))
             env = setting.make_env(num_episodes * len(group))
-            policy = self.policy_factory(setting.grid)
+            policy = block_policy([policies[k] for k in group], setting.grid, num_episodes)
             for index in sorted({i for k in group for i in interventions[k]}):
                 tables = [interventions[k].get(index) for k in group]
                 policy = intervene(policy, env, stack_tables(tables, num_episodes, setting), index)
@@ -263,13 +271,19 @@ class MultiAgentEvaluator:
         return plot_message_heatmap([("evaluated policy", means)], self.setting.grid, save_path)
 
     def test_generalization(
-        self, num_configs: int = 10, num_episodes: int = 500, oracle: bool = True
+        self,
+        num_configs: int = 10,
+        num_episodes: int = 500,
+        oracle: bool = True,
+        map_seeds: Sequence[int] | None = None,
     ) -> dict[str, Any]:
-        """Success greedy and ε-greedy on map seeds 0 .. num_configs − 1 (maps the models
-        never saw; same size and rules), beside the shortest-path oracle on each map
-        (``oracle=False`` leaves it out). ``mean_greedy`` / ``mean_eps``: over the maps."""
+        """Success greedy and ε-greedy on map seeds 0 .. num_configs − 1, or on ``map_seeds``
+        if given (maps the models never saw; same size and rules), beside the shortest-path
+        oracle on each map (``oracle=False`` leaves it out). ``mean_greedy`` / ``mean_eps``:
+        over the maps."""
+        map_seeds = list(range(num_configs) if map_seeds is None else map_seeds)
         maps: dict[str, dict] = {}
-        for map_seed in range(num_configs):
+        for map_seed in map_seeds:
             grid = generate_map(self.setting.grid.shape, map_seed)
             setting = EvaluationSetting(grid, *self._rules())
             entry: dict[str, Any] = {"target": list(setting.target)}
@@ -286,13 +300,34 @@ class MultiAgentEvaluator:
             f"mean_{n}": float(np.mean([m[n] for m in maps.values()])) for n in self.conditions
         }
         return {
-            "map_seeds": list(range(num_configs)),
+            "map_seeds": map_seeds,
             "episodes": num_episodes,
             "maps": maps,
         } | means
 
     def _rules(self) -> tuple[str, int, int]:
         return self.setting.reward_mode, self.setting.max_steps, self.setting.obs_window
+
+
+def block_policy(factories: list[PolicyFactory], grid: np.ndarray, block_size: int) -> PolicyFn:
+    """One policy over consecutive blocks of ``block_size`` copies, block k acting with
+    ``factories[k]``: each run of consecutive blocks with the same factory is one policy
+    ``factory(grid)`` called on its rows (a single policy if every block has the same)."""
+    runs: list[tuple[PolicyFactory, int, int]] = []  # (factory, first row, end row)
+    for k, factory in enumerate(factories):
+        if runs and runs[-1][0] is factory:
+            runs[-1] = (factory, runs[-1][1], (k + 1) * block_size)
+        else:
+            runs.append((factory, k * block_size, (k + 1) * block_size))
+    if len(runs) == 1:
+        return factories[0](grid)
+    parts = [(factory(grid), slice(first, end)) for factory, first, end in runs]
+
+    def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        outputs = [part(obs[rows], positions[rows]) for part, rows in parts]
+        return np.concatenate([a for a, _ in outputs]), np.concatenate([m for _, m in outputs])
+
+    return act
 
 
 def render_state(

@@ -5,7 +5,9 @@ Files: ``performance.json``, ``communication_analysis.json``, ``failure_analysis
 ``generalization.json``, ``interventions.json`` / ``.csv`` / ``.png``,
 ``communication_measures.json`` / ``.csv`` / ``.png``, ``failure_decomposition.csv`` /
 ``.png`` (its numbers are in ``performance.json`` and ``failure_analysis.json``),
-``comparison_table.md``, ``trajectories.png``, ``comm_heatmap.png``, ``episode_<mode>.gif``.
+``mode_differences.csv`` (``performance.json``'s ``mode_differences``), ``held_out.csv``
+(``generalization.json``'s ``held_out``), ``comparison_table.md``, ``trajectories.png``,
+``comm_heatmap.png``, ``episode_<mode>.gif``.
 JSON is written as UTF-8 without NaN or Infinity (a non-finite number is an error).
 """
 
@@ -160,6 +162,39 @@ def decomposition_rows(performance: dict) -> list[list]:
     return rows
 
 
+def difference_rows(performance: dict) -> list[list]:
+    rows = []
+    for name, experiment in performance["experiments"].items():
+        for conditions in experiment.get("mode_differences", {}).values():
+            for condition, d in conditions.items():
+                rows.append(
+                    [name, d["first"], d["second"], condition, d["mean"], *d["ci95"],
+                     *d["ci95_seeds_only"], d["established"], *d["seeds"], d["episodes"]]
+                )  # fmt: skip
+    return rows
+
+
+DIFFERENCE_HEADER = [
+    "experiment", "first", "second", "condition", "difference_mean", "ci95_low", "ci95_high",
+    "seeds_only_ci95_low", "seeds_only_ci95_high", "established", "seeds_first",
+    "seeds_second", "episodes",
+]  # fmt: skip
+
+
+def held_out_rows(generalization: dict) -> list[list]:
+    held_out = generalization["held_out"]
+    rows = [
+        ["baseline", name, "greedy", "maps", *_ci(stat)]
+        for name, stat in held_out["success_rate"].items()
+    ]
+    for mode, conditions in held_out["modes"].items():
+        for condition, entry in conditions.items():
+            for quantity, stat in entry.items():
+                rows.append([mode, quantity, condition, "seeds" if "seeds" in quantity else "maps",
+                             *_ci(stat)])  # fmt: skip
+    return rows
+
+
 def write_outputs(results: dict[str, Any], outcomes: dict, output_dir: Path) -> list[Path]:
     """Write every file of the module docstring to ``output_dir``; the figures show the
     main experiment (or the first one evaluated). Returns the paths written."""
@@ -181,8 +216,18 @@ def write_outputs(results: dict[str, Any], outcomes: dict, output_dir: Path) -> 
                   ["experiment", "mode", "condition", "failed_share", "quantity", "mean",
                    "ci95_low", "ci95_high", "seeds"], decomposition_rows(performance)),
     ]  # fmt: skip
+    written.append(
+        write_csv(output_dir / "mode_differences.csv", DIFFERENCE_HEADER,
+                  difference_rows(performance))
+    )  # fmt: skip
     if "generalization" in results:
         written.append(write_json(output_dir / "generalization.json", results["generalization"]))
+        if "held_out" in results["generalization"]:
+            written.append(
+                write_csv(output_dir / "held_out.csv",
+                          ["policy", "quantity", "condition", "ci_over", "mean", "ci95_low",
+                           "ci95_high", "n"], held_out_rows(results["generalization"]))
+            )  # fmt: skip
     with temporary_path_for(output_dir / "comparison_table.md") as temporary:
         temporary.write_text(format_report(results), encoding="utf-8")
     written.append(output_dir / "comparison_table.md")

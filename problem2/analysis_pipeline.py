@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from analysis_episodes import episode_summary
+from analysis_episodes import EvaluationSetting, episode_summary
 from analysis_evaluator import GENERALIZATION_MAP_SEEDS, MultiAgentEvaluator
 from analysis_failures import (
     DECOMPOSITION,
@@ -48,13 +48,20 @@ from analysis_runs import (
     model_paths,
     relative_models_dir,
 )
-from analysis_stats import BOOTSTRAP_RESAMPLES, seed_statistics
+from analysis_stats import BOOTSTRAP_RESAMPLES, mode_differences, seed_statistics
 from baselines import POLICIES
 from grid_maps import generate_map
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, EpisodeResults, summarize
 
 CONDITIONS = ("greedy", "eps")
+MODE_DIFFERENCES = (
+    "<later>_minus_<earlier>: success of one mode minus another (mean over its seeds of each "
+    "seed's success rate); ci95: percentile bootstrap, each resample redrawing the test "
+    "episodes once for all modes and seeds (paired by episode set) and, independently in "
+    "each mode, its training seeds; ci95_seeds_only: the same with the episode set held "
+    "fixed; established: ci95 excludes 0"
+)
 MESSAGE_TEST = {
     "real": "the partner's message as sent",
     "shuffled": "intervention same_step: the message another episode received at the same step",
@@ -156,8 +163,10 @@ def _intervention_tests(
 
 def evaluate_mode(
     experiment: Experiment, mode: str, num_episodes: int, epsilon: float
-) -> tuple[dict, dict, dict[str, EpisodeResults]]:
-    """Performance and communication entries of one mode, and the best seed's episodes."""
+) -> tuple[dict, dict, dict[str, EpisodeResults], dict[str, np.ndarray]]:
+    """Performance and communication entries of one mode, the best seed's episodes, and
+    per condition the per-episode successes of every seed (seeds, E), for the mode
+    differences."""
     per_seed_perf, per_seed_comm, seed_runs, evaluators = {}, {}, {}, {}
     target = tuple(int(v) for v in np.argwhere(experiment.grid == 2)[0])
     for seed in experiment.seeds[mode]:
@@ -196,7 +205,10 @@ def evaluate_mode(
         communication["interventions"] = tests
     if "message" in tests:
         communication["causal"] = legacy_message_test(tests["message"], epsilon)
-    return performance, communication, seed_runs[chosen]
+    successes = {
+        name: np.stack([runs[name].successes for runs in seed_runs.values()]) for name in CONDITIONS
+    }
+    return performance, communication, seed_runs[chosen], successes
 
 
 def aggregate_measures(per_seed: list[dict]) -> dict[str, Any]:
@@ -235,12 +247,59 @@ def evaluate_experiment(
         performance={**info, "baselines": baselines, "modes": {}},
         communication={"map_seed": info["map_seed"], "modes": {}},
     )
+    successes = {}
     for mode in experiment.seeds:
-        performance, communication, runs = evaluate_mode(experiment, mode, num_episodes, epsilon)
+        performance, communication, runs, successes[mode] = evaluate_mode(
+            experiment, mode, num_episodes, epsilon
+        )
         outcome.performance["modes"][mode] = performance
         outcome.communication["modes"][mode] = communication
         outcome.runs[mode] = runs
+    outcome.performance["mode_differences"] = differences_by_pair(successes)
     return outcome
+
+
+def differences_by_pair(successes: dict[str, dict[str, np.ndarray]]) -> dict[str, dict]:
+    """``{"<later>_minus_<earlier>": {condition: difference}}`` for every pair of modes
+    (``analysis_stats.mode_differences``: paired by test episodes, seeds resampled within
+    each mode); empty with fewer than two modes."""
+    by_condition = {
+        name: mode_differences({mode: s[name] for mode, s in successes.items()})
+        for name in CONDITIONS
+    }
+    pairs = by_condition[CONDITIONS[0]]
+    return {pair: {name: by_condition[name][pair] for name in CONDITIONS} for pair in pairs}
+
+
+def models_on_maps(
+    experiment: Experiment, epsilon: float, map_seeds: tuple[int, ...], num_episodes: int
+) -> dict[str, dict[str, np.ndarray]]:
+    """Success of every model pair of ``experiment``, greedy and ε-greedy, on each of
+    ``map_seeds`` (maps of the experiment's size and rules): ``{mode: {condition: (seeds,
+    maps)}}``. Per map, every (mode, seed, condition) runs the same ``num_episodes`` test
+    episodes in one batch (``MultiAgentEvaluator.run_blocks`` with one policy a block)."""
+    evaluators = {
+        (mode, seed): _evaluator(experiment, epsilon, mode, seed)
+        for mode, seeds in experiment.seeds.items()
+        for seed in seeds
+    }
+    host = next(iter(evaluators.values()))
+    blocks = [(pair, name) for pair in evaluators for name in CONDITIONS]
+    policies = [evaluators[pair].policy_factory for pair, _ in blocks]
+    epsilons = [host.conditions[name] for _, name in blocks]
+    rules = (host.setting.reward_mode, host.setting.max_steps, host.setting.obs_window)
+    rates = np.zeros((len(blocks), len(map_seeds)))
+    for k, map_seed in enumerate(map_seeds):
+        setting = EvaluationSetting(generate_map(experiment.grid.shape, map_seed), *rules)
+        runs = host.run_blocks(num_episodes, epsilons, setting=setting, policies=policies)
+        rates[:, k] = [run.successes.mean() for run in runs]
+    result: dict[str, dict[str, np.ndarray]] = {}
+    for mode, seeds in experiment.seeds.items():
+        result[mode] = {
+            name: np.stack([rates[blocks.index(((mode, seed), name))] for seed in seeds])
+            for name in CONDITIONS
+        }
+    return result
 
 
 def evaluate_generalization(experiment: Experiment, num_episodes: int, epsilon: float) -> dict:
@@ -261,20 +320,14 @@ def evaluate_generalization(experiment: Experiment, num_episodes: int, epsilon: 
         entry["modes"] = {}
         maps[str(map_seed)] = entry
     summary: dict[str, dict] = {}
-    for mode, seeds in experiment.seeds.items():
-        per_seed = [
-            _evaluator(experiment, epsilon, mode, seed).test_generalization(
-                len(GENERALIZATION_MAP_SEEDS), num_episodes, oracle=False
-            )
-            for seed in seeds
-        ]
-        for map_seed, entry in maps.items():
-            entry["modes"][mode] = {
-                name: seed_statistics([run["maps"][map_seed][name] for run in per_seed])
-                for name in CONDITIONS
+    rates = models_on_maps(experiment, epsilon, GENERALIZATION_MAP_SEEDS, num_episodes)
+    for mode, per_mode in rates.items():
+        for k, map_seed in enumerate(maps):
+            maps[map_seed]["modes"][mode] = {
+                name: seed_statistics(per_mode[name][:, k].tolist()) for name in CONDITIONS
             }
         summary[mode] = {
-            name: seed_statistics([run[f"mean_{name}"] for run in per_seed]) for name in CONDITIONS
+            name: seed_statistics(per_mode[name].mean(axis=1).tolist()) for name in CONDITIONS
         }
     return {
         "trained_map_seed": experiment.settings["map_seed"],
@@ -291,12 +344,20 @@ def evaluate_generalization(experiment: Experiment, num_episodes: int, epsilon: 
 
 
 HELD_OUT_MAP_SEEDS = tuple(range(1000, 1040))  # maps no model or setting was chosen on
+HEURISTICS = ("explorer", "sweep_explorer", "beacon_explorer")  # memoryless search, no map
 
 
-def evaluate_held_out_baselines(size: tuple[int, int], max_steps: int, num_episodes: int) -> dict:
-    """Every baseline policy (greedy) on ``HELD_OUT_MAP_SEEDS``: success per map and its
-    mean over maps with a 95 % bootstrap CI over maps. What needs no learning, off the
-    training map."""
+def evaluate_held_out(experiment: Experiment, num_episodes: int, epsilon: float) -> dict:
+    """Every baseline policy (greedy) and every model pair of ``experiment`` (greedy and
+    ε-greedy) on ``HELD_OUT_MAP_SEEDS``, the same ``num_episodes`` start cells per map.
+
+    ``success_rate[policy]``: a baseline's success per map, with its mean over maps and a
+    95 % bootstrap CI over maps. ``modes[mode][condition]``: ``over_maps``, the mean over
+    seeds on each map, with a CI over maps (comparable with the baselines');
+    ``over_seeds``, each seed's mean over the maps, with a CI over seeds; and
+    ``minus_<heuristic>``, the per-map difference to each memoryless heuristic (paired by
+    map), with a CI over maps."""
+    size, max_steps = experiment.grid.shape, int(experiment.settings["max_steps"])
     per_map: dict[str, list[float]] = {name: [] for name in POLICIES}
     for map_seed in HELD_OUT_MAP_SEEDS:
         env = MultiAgentEnv(grid=generate_map(size, map_seed), max_steps=max_steps)
@@ -308,11 +369,30 @@ def evaluate_held_out_baselines(size: tuple[int, int], max_steps: int, num_episo
                 num_episodes, record=False
             )
             per_map[name].append(float(results.successes.mean()))
+    modes: dict[str, dict] = {}
+    for mode, per_mode in models_on_maps(
+        experiment, epsilon, HELD_OUT_MAP_SEEDS, num_episodes
+    ).items():
+        modes[mode] = {}
+        for name in CONDITIONS:
+            rates = per_mode[name]  # (seeds, maps)
+            map_means = rates.mean(axis=0)  # (maps,)
+            modes[mode][name] = {
+                "over_maps": seed_statistics(map_means.tolist()),
+                "over_seeds": seed_statistics(rates.mean(axis=1).tolist()),
+            } | {
+                f"minus_{h}": seed_statistics((map_means - np.array(per_map[h])).tolist())
+                for h in HEURISTICS
+            }
     return {
         "map_seeds": list(HELD_OUT_MAP_SEEDS),
         "episodes_per_map": num_episodes,
+        "epsilon": epsilon,
+        "trained_map_seed": experiment.settings["map_seed"],
         "success_rate": {name: seed_statistics(rates) for name, rates in per_map.items()},
-        "note": "ci95 and per_seed are over maps here",
+        "modes": modes,
+        "note": "success_rate, over_maps and minus_*: ci95 and per_seed are over maps; "
+        "over_seeds: over training seeds",
     }
 
 
@@ -328,6 +408,7 @@ def evaluate_all(
         "bootstrap_resamples": BOOTSTRAP_RESAMPLES,
         "confidence": 0.95,
         "success": "both agents on the target on the same step within max_steps",
+        "mode_differences": MODE_DIFFERENCES,
     }
     outcomes, start = {}, time.perf_counter()
     for experiment in experiments:
@@ -352,8 +433,8 @@ def evaluate_all(
         results["generalization"] = evaluate_generalization(
             main, args.generalization_episodes, args.epsilon
         )
-        results["generalization"]["held_out"] = evaluate_held_out_baselines(
-            main.grid.shape, int(main.settings["max_steps"]), args.generalization_episodes
+        results["generalization"]["held_out"] = evaluate_held_out(
+            main, args.generalization_episodes, args.epsilon
         )
         print(f"evaluated generalisation ({time.perf_counter() - start:.0f} s)")
     return results, outcomes

@@ -276,25 +276,65 @@ def measures_section(communication: dict) -> list[str]:
     ]
 
 
+def differences_section(performance: dict) -> list[str]:
+    """Every experiment's pairwise mode differences, and which are established."""
+    rows = []
+    for name, experiment in performance["experiments"].items():
+        for conditions in experiment.get("mode_differences", {}).values():
+            for condition, d in conditions.items():
+                low, high = d["ci95"]
+                rows.append(
+                    [name, f"{d['first']} − {d['second']}", condition,
+                     f"{d['mean']:+.3f} [{low:+.3f}, {high:+.3f}]",
+                     "[{:+.3f}, {:+.3f}]".format(*d["ci95_seeds_only"]),
+                     "**yes**" if d["established"] else "no"]
+                )  # fmt: skip
+    if not rows:
+        return []
+    text = performance["protocol"].get("mode_differences", "")
+    return [
+        "## Differences between modes (success, first − second)",
+        "",
+        text[0].upper() + text[1:] + ".",
+        "",
+        *_table(["experiment", "difference", "condition", "mean [95 % CI]",
+                 "CI, episodes fixed", "established (CI excludes 0)"], rows),
+        "",
+    ]  # fmt: skip
+
+
 def held_out_section(generalization: dict | None) -> list[str]:
     held_out = (generalization or {}).get("held_out")
     if not held_out:
         return []
-    rows = [[name, _stat(stat)] for name, stat in held_out["success_rate"].items()]
-    return [
-        f"## Baselines on {len(held_out['map_seeds'])} held-out maps "
-        f"({held_out['episodes_per_map']} episodes each; CI over maps)",
-        "",
-        *_table(["policy", "success [95 % CI]"], rows),
-        "",
+    rows = [
+        [name, _stat(stat), _stat(stat), "–"] for name, stat in held_out["success_rate"].items()
     ]
+    for mode, conditions in held_out.get("modes", {}).items():
+        rows.append(
+            [f"{mode} (trained on map {held_out['trained_map_seed']})"]
+            + [_stat(conditions[c]["over_maps"]) for c in ("greedy", "eps")]
+            + [_stat(conditions["eps"]["over_seeds"])]
+        )
+    return [
+        f"## Held-out maps: {len(held_out['map_seeds'])} maps never used for any choice "
+        f"({held_out['episodes_per_map']} episodes each)",
+        "",
+        "Baselines are greedy (their two columns agree). CI over maps, except the last "
+        "column (each seed's mean over the maps, CI over seeds).",
+        "",
+        *_table(["policy", "success greedy [95 % CI over maps]",
+                 f"success ε = {held_out['epsilon']} [CI over maps]",
+                 "success ε [CI over seeds]"], rows),
+        "",
+    ]  # fmt: skip
 
 
 def format_report(results: dict[str, Any], brief: bool = False) -> str:
     """Markdown of every section; ``brief``: the success table, the message verdicts and the
     generalisation summary only (for the console)."""
     performance = results["performance"]
-    sections = [success_section(performance)]
+    sections = [success_section(performance), differences_section(performance)]
     if not brief:
         sections += [
             panel_section(performance),

@@ -81,3 +81,80 @@ def paired_difference(
     difference = np.asarray(first, dtype=np.float64) - np.asarray(second, dtype=np.float64)
     low, high = bootstrap_ci(difference, n_resamples=n_resamples, seed=seed)
     return {"mean": float(difference.mean()), "ci95": [low, high]}
+
+
+def _resampled_episode_weights(rng: np.random.Generator, size: int, episodes: int) -> np.ndarray:
+    """(size, E) float32 counts: how often each episode is drawn in each of ``size``
+    resamples of E episodes with replacement."""
+    drawn = rng.integers(0, episodes, (size, episodes)) + episodes * np.arange(size)[:, None]
+    counts = np.bincount(drawn.ravel(), minlength=size * episodes)
+    return counts.reshape(size, episodes).astype(np.float32)
+
+
+def mode_differences(
+    successes: dict[str, np.ndarray],
+    n_resamples: int = BOOTSTRAP_RESAMPLES,
+    seed: int = BOOTSTRAP_SEED,
+    chunk: int = 1_000,
+) -> dict[str, dict[str, float | list | bool | int | str]]:
+    """Difference of success for each pair of modes, later minus earlier in the order of
+    ``successes``, with its own 95 % bootstrap CI; keys ``"<later>_minus_<earlier>"``.
+
+    ``successes[mode]`` (S_mode, E) holds the per-episode success (0 or 1) of each training
+    seed of the mode on the same E fixed test episodes: column e is the same start cells and
+    exploration draws for every seed of every mode. A mode's success is the mean over its
+    seeds of each seed's success rate; ``mean`` is the difference of two of them.
+
+    What one bootstrap resample redraws, with replacement:
+      * the test episodes: one draw of E episode indices, *shared* by every mode and seed
+        (the pairing by test episode set: both modes of a pair are scored on the same
+        resampled episodes, so the episodes' difficulty cancels in the difference);
+      * the training seeds: S_mode seeds of each mode, independently between modes (the
+        seeds of two modes are unrelated training runs).
+    ``ci95`` is the percentile interval of the resampled differences; ``ci95_seeds_only``
+    keeps the episode set fixed and redraws the seeds only (the spread due to training
+    alone). ``established``: ``ci95`` excludes 0.
+    """
+    rates = {m: np.asarray(a, dtype=np.float32) for m, a in successes.items()}
+    shapes = {a.shape[1] for a in rates.values() if a.ndim == 2}
+    if len(shapes) != 1 or any(a.ndim != 2 or len(a) == 0 for a in rates.values()):
+        raise ValueError(
+            "mode_differences needs (seeds, E) arrays with the same E, got "
+            f"{ {m: a.shape for m, a in rates.items()} }"
+        )
+    episodes = shapes.pop()
+    rng = np.random.default_rng(seed)
+    both = {m: [] for m in rates}
+    seeds_only = {m: [] for m in rates}
+    for start in range(0, n_resamples, chunk):
+        size = min(chunk, n_resamples - start)
+        weights = _resampled_episode_weights(rng, size, episodes)  # (R, E)
+        for mode, values in rates.items():
+            count = len(values)
+            picks = rng.multinomial(count, np.full(count, 1 / count), size=size)  # (R, S)
+            per_seed = weights @ values.T / episodes  # (R, S): each seed on the resampled episodes
+            both[mode].append((picks * per_seed).sum(axis=1) / count)
+            seeds_only[mode].append(picks @ values.mean(axis=1) / count)
+    tail = (1 - CONFIDENCE) / 2
+    names = list(rates)
+    result = {}
+    for k, earlier in enumerate(names):
+        for later in names[k + 1 :]:
+            spread = np.concatenate(both[later]) - np.concatenate(both[earlier])
+            fixed = np.concatenate(seeds_only[later]) - np.concatenate(seeds_only[earlier])
+            low, high = np.quantile(spread, [tail, 1 - tail])
+            fixed_low, fixed_high = np.quantile(fixed, [tail, 1 - tail])
+            result[f"{later}_minus_{earlier}"] = {
+                "first": later,
+                "second": earlier,
+                "mean": float(
+                    rates[later].astype(np.float64).mean(axis=1).mean()
+                    - rates[earlier].astype(np.float64).mean(axis=1).mean()
+                ),
+                "ci95": [float(low), float(high)],
+                "ci95_seeds_only": [float(fixed_low), float(fixed_high)],
+                "established": bool(low > 0 or high < 0),
+                "seeds": [len(rates[later]), len(rates[earlier])],
+                "episodes": episodes,
+            }
+    return result

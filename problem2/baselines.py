@@ -6,6 +6,8 @@
 * :func:`explorer_policy`: memoryless, from the agent's own patch only: on the target, stay;
   target in sight, step towards it; otherwise a random unblocked move. With
   ``sweep=True`` the agent keeps its direction until blocked (one heading of state).
+* :func:`beacon_explorer_policy`: the sweeping explorer that says "I am on the target" with
+  its message and, hearing it, homes in on the partner by the distance it observes.
 
 ``python baselines.py`` evaluates them on the default map (seed 641) and map seeds 0–4,
 prints a table and writes ``results/evaluation_results/baselines.json``.
@@ -72,6 +74,32 @@ def oracle_policy(grid: np.ndarray) -> PolicyFn:
 
 
 STAY = len(ACTION_DELTAS) - 1
+PERPENDICULAR = np.array([[2, 3], [2, 3], [0, 1], [0, 1]])  # Up Down Left Right -> the two across
+ON_TARGET_MESSAGE = 1.0  # the beacon explorer's "I am on the target"
+
+
+def _patch_moves(obs: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """From each agent's own patch (observation elements 0 .. w² − 1 of obs (N, 2, D)):
+    which of Up, Down, Left, Right is unblocked (N, 2, 4), whether the target is in sight
+    (N, 2), and the move towards it (N, 2): Stay on it, else vertically first when that cell
+    is open."""
+    centre = w * w // 2
+    neighbours = np.array([centre - w, centre + w, centre - 1, centre + 1])  # Up Down Left Right
+    offsets = np.stack(np.divmod(np.arange(w * w), w), axis=-1) - w // 2  # (w², 2)
+    patch = obs[..., : w * w]  # (N, 2, w²)
+    around = patch[..., neighbours]  # (N, 2, 4)
+    open_moves = (around == FREE) | (around == TARGET)
+    seen = patch == TARGET
+    d_row, d_col = np.moveaxis(offsets[np.argmax(seen, axis=-1)], -1, 0)  # (N, 2) each
+    vertical, horizontal = np.where(d_row < 0, 0, 1), np.where(d_col < 0, 2, 3)
+    vertical_open = np.take_along_axis(open_moves, vertical[..., None], axis=-1)[..., 0]
+    toward = np.where((d_row != 0) & (vertical_open | (d_col == 0)), vertical, horizontal)
+    toward = np.where((d_row == 0) & (d_col == 0), STAY, toward)
+    return open_moves, seen.any(axis=-1), toward
+
+
+def _is_open(open_moves: np.ndarray, moves: np.ndarray) -> np.ndarray:
+    return np.take_along_axis(open_moves, moves[..., None], axis=-1)[..., 0]
 
 
 def explorer_policy(seed: int | None = None, sweep: bool = False, obs_window: int = 3) -> PolicyFn:
@@ -81,33 +109,59 @@ def explorer_policy(seed: int | None = None, sweep: bool = False, obs_window: in
     ``sweep``, keep the current heading while it is unblocked (a new random one when
     blocked). Sends the message 0."""
     rng = np.random.default_rng(seed)
-    w = obs_window
-    centre = w * w // 2
-    neighbours = np.array([centre - w, centre + w, centre - 1, centre + 1])  # Up Down Left Right
-    offsets = np.stack(np.divmod(np.arange(w * w), w), axis=-1) - w // 2  # (w², 2)
     heading: np.ndarray | None = None
 
     def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         nonlocal heading
-        patch = obs[..., : w * w]  # (N, 2, w²)
-        around = patch[..., neighbours]  # (N, 2, 4)
-        open_moves = (around == FREE) | (around == TARGET)
-        random_move = np.argmax(rng.random(around.shape) + open_moves, axis=-1)  # (N, 2)
+        open_moves, visible, toward = _patch_moves(obs, obs_window)
+        random_move = np.argmax(rng.random(open_moves.shape) + open_moves, axis=-1)  # (N, 2)
         move = random_move
         if sweep:
             if heading is None or heading.shape != random_move.shape:
                 heading = random_move
-            still_open = np.take_along_axis(open_moves, heading[..., None], axis=-1)[..., 0]
-            heading = move = np.where(still_open, heading, random_move)
-        seen = patch == TARGET
-        visible = seen.any(axis=-1)
-        d_row, d_col = np.moveaxis(offsets[np.argmax(seen, axis=-1)], -1, 0)  # (N, 2) each
-        vertical, horizontal = np.where(d_row < 0, 0, 1), np.where(d_col < 0, 2, 3)
-        vertical_open = np.take_along_axis(open_moves, vertical[..., None], axis=-1)[..., 0]
-        toward = np.where((d_row != 0) & (vertical_open | (d_col == 0)), vertical, horizontal)
-        toward = np.where((d_row == 0) & (d_col == 0), STAY, toward)
+            heading = move = np.where(_is_open(open_moves, heading), heading, random_move)
         actions = np.where(visible, toward, move)
         return actions, np.zeros(actions.shape)
+
+    return act
+
+
+def beacon_explorer_policy(seed: int | None = None, obs_window: int = 3) -> PolicyFn:
+    """The sweeping explorer with a beacon: it uses the message and the distance.
+
+    * Message: ``ON_TARGET_MESSAGE`` (1) while the agent stands on the target, else 0.
+    * While the partner's message (observation element w²) says it is on the target, the
+      distance to the partner (element w² + 1) is the distance to the target, and the agent
+      homes in on it: it keeps its heading while the distance did not grow on the last step
+      and turns to a random unblocked perpendicular heading when it grew (or when blocked).
+    * Otherwise, and with the target in sight, it acts as ``explorer_policy(sweep=True)``.
+    State: the heading and the distance of the previous step, per agent (like the sweeping
+    explorer, no map and no memory of where it has been)."""
+    rng = np.random.default_rng(seed)
+    w = obs_window
+    heading: np.ndarray | None = None
+    last_distance: np.ndarray | None = None
+
+    def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        nonlocal heading, last_distance
+        open_moves, visible, toward = _patch_moves(obs, w)
+        partner_on_target = obs[..., w * w] >= 0.5
+        distance = obs[..., w * w + 1]
+        random_move = np.argmax(rng.random(open_moves.shape) + open_moves, axis=-1)  # (N, 2)
+        if heading is None or heading.shape != random_move.shape:
+            heading, last_distance = random_move, distance
+        across = PERPENDICULAR[heading]  # (N, 2, 2)
+        across_open = np.take_along_axis(open_moves, across, axis=-1)  # (N, 2, 2)
+        pick = np.argmax(rng.random(across_open.shape) + across_open, axis=-1)
+        turn = np.take_along_axis(across, pick[..., None], axis=-1)[..., 0]
+        turn = np.where(across_open.any(axis=-1), turn, random_move)
+        farther = partner_on_target & (distance > last_distance + 1e-6)
+        heading = np.where(farther, turn, heading)
+        heading = np.where(_is_open(open_moves, heading), heading, random_move)
+        last_distance = distance
+        actions = np.where(visible, toward, heading)
+        on_target = obs[..., (w * w) // 2] == TARGET
+        return actions, np.where(on_target, ON_TARGET_MESSAGE, 0.0)
 
     return act
 
@@ -117,6 +171,7 @@ POLICIES = {
     "oracle": lambda grid, seed: oracle_policy(grid),
     "explorer": lambda grid, seed: explorer_policy(seed),
     "sweep_explorer": lambda grid, seed: explorer_policy(seed, sweep=True),
+    "beacon_explorer": lambda grid, seed: beacon_explorer_policy(seed),
 }
 
 

@@ -10,7 +10,10 @@ import numpy as np
 import pytest
 from baselines import (
     MAP_SEEDS,
+    ON_TARGET_MESSAGE,
+    PERPENDICULAR,
     POLICIES,
+    beacon_explorer_policy,
     evaluate_baselines,
     format_table,
     main,
@@ -111,3 +114,56 @@ def test_table_lists_every_map_and_policy() -> None:
     assert results["maps"]["641"]["target"] == list(
         map(int, np.argwhere(generate_map((10, 10), 641) == 2)[0])
     )
+
+
+def _open_observation(n: int, message: float, distance: float, centre: int = 0) -> np.ndarray:
+    """Observations (n, 2, 11) of two agents on open cells: free 3 x 3 patch (``centre`` in
+    the middle), the partner's ``message`` and the ``distance``."""
+    obs = np.zeros((n, 2, 11), dtype=np.float32)
+    obs[..., 4] = centre
+    obs[..., 9], obs[..., 10] = message, distance
+    return obs
+
+
+def test_beacon_explorer_says_on_target_and_stays() -> None:
+    policy = beacon_explorer_policy(seed=0)
+    obs = _open_observation(4, 0.0, 0.3)
+    obs[:2, 0, 4] = 2  # agent A of the first two copies stands on the target
+    actions, messages = policy(obs, np.zeros((4, 2, 2), dtype=np.int64))
+    assert np.array_equal(messages[:, 0], [ON_TARGET_MESSAGE, ON_TARGET_MESSAGE, 0.0, 0.0])
+    assert (messages[:, 1] == 0).all() and (actions[:2, 0] == 4).all()  # Stay on the target
+
+
+def test_beacon_explorer_turns_across_when_the_partners_distance_grows() -> None:
+    policy = beacon_explorer_policy(seed=3)
+    positions = np.zeros((200, 2, 2), dtype=np.int64)
+    first, _ = policy(_open_observation(200, 1.0, 0.30), positions)
+    closer, _ = policy(_open_observation(200, 1.0, 0.25), positions)
+    assert np.array_equal(closer, first)  # getting closer: keep the heading
+    farther, _ = policy(_open_observation(200, 1.0, 0.35), positions)
+    assert all(farther[k, a] in PERPENDICULAR[closer[k, a]] for k in range(200) for a in (0, 1))
+    unheard, _ = policy(_open_observation(200, 0.0, 0.50), positions)
+    assert np.array_equal(unheard, farther)  # no beacon: the distance is not used
+
+
+def test_beacon_explorer_finds_a_parked_partner_more_often_than_the_sweep() -> None:
+    """With the partner already on the target, the beacon is all that differs."""
+    grid = generate_map((10, 10), 641)
+    target = np.argwhere(grid == 2)[0]
+    env = VectorMultiAgentEnv(400, grid=grid)
+    starts = start_positions_with_b_on(env, target, seed=2)
+    rates = {}
+    for name in ("sweep_explorer", "beacon_explorer"):
+        run = run_episodes(env, POLICIES[name](grid, 5), 400, start_positions=starts)
+        rates[name] = run.successes.mean()
+    assert rates["beacon_explorer"] > rates["sweep_explorer"] + 0.1
+
+
+def start_positions_with_b_on(
+    env: VectorMultiAgentEnv, target: np.ndarray, seed: int
+) -> np.ndarray:
+    """Start cells (N, 2, 2): A on a random free cell, B on the target."""
+    env.reset(seed=seed)
+    starts = env.positions.copy()
+    starts[:, 1] = target
+    return starts

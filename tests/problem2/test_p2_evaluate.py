@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import pytest
+from analysis_evaluator import block_policy
 from analysis_failures import FAILURE_KINDS, classify_failures, failure_decomposition
 from analysis_information import causal_influence, mutual_information
 from analysis_interventions import (
@@ -19,7 +20,7 @@ from analysis_interventions import (
     received_values,
     stack_tables,
 )
-from analysis_stats import bootstrap_ci, interquartile_mean, seed_statistics
+from analysis_stats import bootstrap_ci, interquartile_mean, mode_differences, seed_statistics
 from baselines import POLICIES, explorer_policy, oracle_policy, random_policy
 from evaluate import MultiAgentEvaluator
 from models import MESSAGE_INDEX
@@ -105,6 +106,40 @@ def _real_run(episodes: int = 200) -> tuple[MultiAgentEvaluator, EpisodeResults]
 
     evaluator = MultiAgentEvaluator(MultiAgentEnv(seed=641), policy_factory=factory)
     return evaluator, evaluator.run(episodes)
+
+
+def test_mode_differences_pair_by_episode_and_name_the_established_ones() -> None:
+    rng = np.random.default_rng(0)
+    easy = rng.random(1000) < 0.6  # episodes that every seed of every mode solves
+    base = np.tile(easy, (10, 1))
+    worse = base.copy()
+    worse[:, np.flatnonzero(easy)[:30]] = False  # 30 easy episodes lost by every seed
+    noisy = rng.random((5, 1000)) < 0.6  # unrelated to the episodes' difficulty
+    result = mode_differences({"worse": worse, "base": base, "noisy": noisy}, n_resamples=2000)
+    assert list(result) == ["base_minus_worse", "noisy_minus_worse", "noisy_minus_base"]
+    gain = result["base_minus_worse"]
+    assert gain["mean"] == pytest.approx(0.03) and gain["ci95_seeds_only"] == [
+        pytest.approx(0.03), pytest.approx(0.03)
+    ]  # fmt: skip
+    # paired: the episodes' difficulty cancels, only the 30 flipped episodes vary
+    assert gain["established"] and 0.015 < gain["ci95"][0] <= 0.03 <= gain["ci95"][1] < 0.045
+    assert gain["seeds"] == [10, 10] and gain["episodes"] == 1000
+    same = mode_differences({"a": base, "b": base}, n_resamples=500)["b_minus_a"]
+    assert same["mean"] == 0 and same["ci95"] == [0, 0] and not same["established"]
+    with pytest.raises(ValueError, match="same E"):
+        mode_differences({"a": base, "b": base[:, :10]})
+
+
+def test_block_policy_gives_each_block_its_own_policy() -> None:
+    def constant(action: int):
+        return lambda grid: (
+            lambda obs, pos: (np.full((len(obs), 2), action), np.zeros((len(obs), 2)))
+        )
+
+    one, two = constant(1), constant(2)
+    policy = block_policy([one, one, two], np.zeros((3, 3)), 4)
+    actions, messages = policy(np.zeros((12, 2, 11)), np.zeros((12, 2, 2), dtype=np.int64))
+    assert actions[:, 0].tolist() == [1] * 8 + [2] * 4 and messages.shape == (12, 2)
 
 
 @pytest.mark.parametrize("kind", [k for k in INTERVENTIONS if k != "real"])

@@ -50,6 +50,8 @@ OUTPUTS = [
     "communication_measures.json",
     "communication_measures.csv",
     "failure_decomposition.csv",
+    "mode_differences.csv",
+    "held_out.csv",
     "failure_decomposition.png",
     "communication_measures.png",
     "failure_analysis.json",
@@ -120,6 +122,33 @@ def test_communication_analysis_has_causal_test_and_verdict(evaluated: tuple[dic
     held_out = generalization["held_out"]
     assert len(held_out["map_seeds"]) == 40 and set(held_out["success_rate"]) == set(POLICIES)
     assert held_out["success_rate"]["oracle"]["mean"] == 1.0
+    assert set(held_out["modes"]) == {"independent", "comm", "full"}
+    full = held_out["modes"]["full"]["eps"]
+    assert full["over_maps"]["n"] == 40 and full["over_seeds"]["n"] == 2
+    assert full["over_maps"]["mean"] == pytest.approx(full["over_seeds"]["mean"])
+    beacon = np.array(full["over_maps"]["per_seed"]) - np.array(
+        held_out["success_rate"]["beacon_explorer"]["per_seed"]
+    )
+    assert full["minus_beacon_explorer"]["per_seed"] == pytest.approx(beacon.tolist())
+
+
+def test_mode_differences_are_written(evaluated: tuple[dict, Path]) -> None:
+    _, output = evaluated
+    performance = json.loads((output / "performance.json").read_text(encoding="utf-8"))
+    main_entry = performance["experiments"]["main"]
+    differences = main_entry["mode_differences"]
+    assert set(differences) == {"comm_minus_independent", "full_minus_independent",
+                                "full_minus_comm"}  # fmt: skip
+    for pair, conditions in differences.items():
+        for condition, d in conditions.items():
+            first, second = (main_entry["modes"][d[k]][condition]["success_rate"]["mean"]
+                             for k in ("first", "second"))  # fmt: skip
+            assert pair == f"{d['first']}_minus_{d['second']}"
+            assert d["mean"] == pytest.approx(first - second)
+            assert d["established"] == (d["ci95"][0] > 0 or d["ci95"][1] < 0)
+    rows = (output / "mode_differences.csv").read_text(encoding="utf-8").splitlines()
+    assert rows[0].startswith("experiment,first,second,condition") and len(rows) == 1 + 6
+    assert "Differences between modes" in (output / "comparison_table.md").read_text("utf-8")
 
 
 def test_interventions_measures_and_decomposition_are_written(
