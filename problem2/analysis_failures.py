@@ -1,11 +1,50 @@
-"""How test episodes fail, from recorded trajectories: the kind of each failed episode
-(what the agents do at the end) and the decomposition of failures into navigation (an agent
-never reached the target) and timing (both did, never together)."""
+"""Who stands on the target when, and how test episodes fail, from recorded trajectories:
+the arrival measures every study uses (:func:`on_target`, :func:`arrivals`), the kind of each
+failed episode (what the agents do at the end) and the decomposition of failures into
+navigation (an agent never reached the target) and timing (both did, never together)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from rollout import EpisodeResults
+
+
+def on_target(positions: np.ndarray, lengths: np.ndarray, target: tuple[int, int]) -> np.ndarray:
+    """(E, T + 1, 2) bool: agent i stands on the target at position t of episode e, counting
+    only the positions of the episode (t <= length; a recording holds the last position after
+    the end). ``positions`` (E, T + 1, 2, 2) as recorded by ``rollout.run_episodes``."""
+    within = np.arange(positions.shape[1])[None, :] <= np.asarray(lengths)[:, None]  # (E, T + 1)
+    return np.all(positions == np.asarray(target), axis=-1) & within[..., None]
+
+
+@dataclass(frozen=True)
+class Arrivals:
+    """Per-episode arrival facts, from :func:`on_target` (E episodes)."""
+
+    on: np.ndarray  # (E, T + 1, 2) bool: on the target at position t, within the episode
+    reached: np.ndarray  # (E, 2) bool: the agent stood on the target at some step
+    first_arrival: np.ndarray  # (E, 2) int: first position index on the target (valid if reached)
+    steps_one_on_target: np.ndarray  # (E,) int: steps after which exactly one agent is on it
+
+    @property
+    def both_arrived(self) -> np.ndarray:
+        """(E,) both agents stood on the target at some step (not necessarily together)."""
+        return self.reached.all(axis=1)
+
+    @property
+    def one_never_arrives(self) -> np.ndarray:
+        """(E,) exactly one agent ever stood on the target: the other never came."""
+        return self.reached.sum(axis=1) == 1
+
+
+def arrivals(positions: np.ndarray, lengths: np.ndarray, target: tuple[int, int]) -> Arrivals:
+    """:class:`Arrivals` of recorded episodes (positions (E, T + 1, 2, 2), lengths (E,))."""
+    on = on_target(positions, lengths, target)
+    exactly_one = on[:, 1:, 0] != on[:, 1:, 1]  # (E, T); False past the end (both off)
+    return Arrivals(on, on.any(axis=1), on.argmax(axis=1), exactly_one.sum(axis=1))
+
 
 FAILURE_KINDS = ("swapping", "parked", "looping", "other")
 FAILURE_WINDOW = 10  # the last steps of a failed episode that its classification looks at
@@ -55,9 +94,9 @@ def classify_failures(results: EpisodeResults, target: tuple[int, int]) -> np.nd
         & np.any(before[:, :, 0] != before[:, :, 1], axis=-1)
         & np.all(np.abs(before - target).sum(axis=-1) <= SWAP_RADIUS, axis=-1)
     )  # (E, W)
-    on_target = np.all(window == target, axis=-1)  # (E, W + 1, 2)
-    ever_on_target = np.all(positions == target, axis=-1).any(axis=1)  # (E, 2)
-    stays = on_target[:, -1] & (on_target.mean(axis=1) >= PARKED_SHARE)  # (E, 2)
+    on_window = np.all(window == target, axis=-1)  # (E, W + 1, 2)
+    ever_on_target = arrivals(positions, results.lengths, tuple(target)).reached  # (E, 2)
+    stays = on_window[:, -1] & (on_window.mean(axis=1) >= PARKED_SHARE)  # (E, 2)
     parked = (stays & ~ever_on_target[:, ::-1]).any(axis=1)
     cells = window[..., 0] * (positions[..., 1].max() + 1) + window[..., 1]  # (E, W + 1, 2)
     ordered = np.sort(cells, axis=1)
@@ -99,12 +138,12 @@ def failure_decomposition(results: EpisodeResults, target: tuple[int, int]) -> d
         raise ValueError("failure_decomposition needs recorded episodes (record=True)")
     positions = results.trajectories["positions"]  # (E, T + 1, 2, 2)
     horizon = positions.shape[1] - 1
-    on = np.all(positions == np.asarray(target), axis=-1)  # (E, T + 1, 2)
+    arrived = arrivals(positions, results.lengths, target)
+    on, reached = arrived.on, arrived.reached  # (E, T + 1, 2), (E, 2)
     failed = ~results.successes
-    reached = on.any(axis=1)  # (E, 2)
-    left = (on[:, :-1] & ~on[:, 1:]).any(axis=(1, 2))
     taken = (np.arange(horizon)[None, :] < results.lengths[:, None])[..., None]  # (E, T, 1)
-    began_on = on[:, :-1] & taken
+    began_on = on[:, :-1] & taken  # steps begun on the target
+    left = (began_on & ~on[:, 1:]).any(axis=(1, 2))
     count = int(failed.sum())
 
     def share(kind: np.ndarray) -> float | None:

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from _atomic import write_json_atomic
 from analysis_evaluator import MultiAgentEvaluator
+from analysis_failures import arrivals
 from analysis_runs import Experiment, load_model_pair, read_experiment
 from analysis_stats import seed_statistics
 from grid_maps import DEFAULT_MAP_SEED, TARGET, generate_map, target_distances
@@ -63,18 +64,14 @@ def episode_measures(
     """Every measure of ``MEASURES`` over recorded episodes: positions (E, T + 1, 2, 2)
     held after the end, lengths (E,), successes (E,)."""
     target = tuple(int(i) for i in np.argwhere(grid == TARGET)[0])
-    steps = np.arange(positions.shape[1])
-    within = steps[None, :] <= lengths[:, None]  # (E, T + 1)
-    on_target = (positions == np.asarray(target)).all(axis=-1) & within[..., None]
-    ever = on_target.any(axis=1)  # (E, 2)
-    both_arrived = ever.all(axis=1)
-    first_arrival = on_target.argmax(axis=1)  # (E, 2), valid where ever
-    gaps = np.abs(first_arrival[:, 0] - first_arrival[:, 1])[both_arrived]
+    arrived = arrivals(positions, lengths, target)
+    both_arrived = arrived.both_arrived
+    gaps = np.abs(arrived.first_arrival[:, 0] - arrived.first_arrival[:, 1])[both_arrived]
     distance = target_distances(grid)[positions[..., 0], positions[..., 1]]  # (E, T + 1, 2)
-    stays = on_target[:, :-1] & on_target[:, 1:]  # (E, T, 2)
+    within = np.arange(positions.shape[1])[None, :] <= lengths[:, None]  # (E, T + 1)
+    stays = arrived.on[:, :-1] & arrived.on[:, 1:]  # (E, T, 2)
     leaves = (distance[:, :-1] == 1) & (distance[:, 1:] > 1) & within[:, 1:, None]
     turned_away = (stays & leaves[..., ::-1]).any(axis=(1, 2))
-    exactly_one = (on_target[:, 1:, 0] != on_target[:, 1:, 1]) & within[:, 1:]
 
     def returns(reward: str) -> float:
         return float(joint_dp.returns_from_positions(positions, lengths, target, reward).mean())
@@ -84,11 +81,11 @@ def episode_measures(
         "mean_steps_to_success": float(lengths[successes].mean()) if successes.any() else None,
         "return_assignment": returns("per_step"),
         "return_arrival": returns("arrival"),
-        "one_never_arrives": float((ever.any(axis=1) & ~both_arrived).mean()),
+        "one_never_arrives": float(arrived.one_never_arrives.mean()),
         "second_agent_reaches_target": float(both_arrived.mean()),
         "turned_away": float(turned_away.mean()),
         "time_between_arrivals": float(gaps.mean()) if gaps.size else None,
-        "steps_one_on_target": float(exactly_one.sum(axis=1).mean()),
+        "steps_one_on_target": float(arrived.steps_one_on_target.mean()),
     }
 
 

@@ -9,7 +9,13 @@ import json
 import numpy as np
 import pytest
 from analysis_evaluator import block_policy
-from analysis_failures import FAILURE_KINDS, classify_failures, failure_decomposition
+from analysis_failures import (
+    FAILURE_KINDS,
+    arrivals,
+    classify_failures,
+    failure_decomposition,
+    on_target,
+)
 from analysis_information import causal_influence, mutual_information
 from analysis_interventions import (
     INTERVENTIONS,
@@ -306,3 +312,22 @@ def test_causal_influence_is_zero_for_a_receiver_that_ignores_the_message() -> N
     follows = lambda obs: np.stack([obs[:, 9], 1 - obs[:, 9], *[0 * obs[:, 9]] * 3], 1)  # noqa: E731
     # two equally likely messages, each picks another action: I = H(a) under ε = 0 -> 1 bit
     assert causal_influence(follows, states, 9, np.array([0.5, 0.5]), 0.0) == pytest.approx(1.0)
+
+
+def test_arrivals_count_only_the_steps_of_each_episode() -> None:
+    target, far = (1, 1), (0, 0)
+    # episode 0: A arrives at step 2 and stays, B never; ends at step 4 (time limit)
+    # episode 1: B arrives at step 1, A at step 3 (success, length 3); then held on the target
+    positions = np.array(
+        [
+            [[far, far], [far, far], [target, far], [target, far], [target, far]],
+            [[far, far], [far, target], [far, target], [target, target], [target, target]],
+        ]
+    )
+    arrived = arrivals(positions, np.array([4, 3]), target)
+    assert arrived.reached.tolist() == [[True, False], [True, True]]
+    assert arrived.first_arrival.tolist() == [[2, 0], [3, 1]]
+    assert arrived.one_never_arrives.tolist() == [True, False]
+    assert arrived.both_arrived.tolist() == [False, True]
+    assert arrived.steps_one_on_target.tolist() == [3, 2]
+    assert not on_target(positions, np.array([4, 2]), target)[1, 3:].any()  # after its end
