@@ -25,9 +25,8 @@ from analysis_interventions import (
     stack_tables,
 )
 from analysis_messages import mean_message_per_cell, message_correlations, message_distribution
-from analysis_plots import plot_message_heatmap, plot_trajectories
-from analysis_runs import check_policy
-from analysis_traces import representative_traces
+from analysis_plots import plot_message_heatmap, plot_trajectories, representative_traces
+from analysis_runs import Experiment, check_policy, load_model_pair, model_paths
 from baselines import oracle_policy
 from grid_maps import ACTION_NAMES, OBSTACLE, TARGET, generate_map
 from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
@@ -307,6 +306,22 @@ class MultiAgentEvaluator:
 
     def _rules(self) -> tuple[str, int, int]:
         return self.setting.reward_mode, self.setting.max_steps, self.setting.obs_window
+
+
+def experiment_evaluator(
+    experiment: Experiment, epsilon: float, mode: str | None = None, seed: int | None = None, **kw
+) -> MultiAgentEvaluator:
+    """An evaluator on ``experiment``'s map and time limit: of the pair (``mode``, ``seed``)
+    loaded from its models folder, or, without ``mode``, of ``kw["policy_factory"]``."""
+    settings = experiment.settings
+    # Returns are reported under the assignment's reward (the env's default), whatever
+    # reward the agents were trained on; success does not depend on the reward.
+    env = MultiAgentEnv(grid=experiment.grid, max_steps=int(settings["max_steps"]))
+    if mode is None:
+        return MultiAgentEvaluator(env, epsilon=epsilon, **kw)
+    models = load_model_pair(experiment.models_dir, mode, seed)
+    names = tuple(str(path) for path in model_paths(experiment.models_dir, mode, seed))
+    return MultiAgentEvaluator(env, *models, epsilon=epsilon, names=names, **kw)
 
 
 def block_policy(factories: list[PolicyFactory], grid: np.ndarray, block_size: int) -> PolicyFn:

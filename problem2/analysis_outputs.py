@@ -28,10 +28,10 @@ from analysis_plots import (
     plot_measures,
     plot_message_heatmap,
     plot_trajectories,
+    representative_traces,
     save_episode_gif,
 )
 from analysis_report import format_report
-from analysis_traces import representative_traces
 
 CONDITIONS = ("greedy", "eps")
 

@@ -1,6 +1,6 @@
 """What ``python evaluate.py`` does: evaluate every trained (mode, seed) of every experiment
-found, aggregate over seeds, test the message causally, test the main models on unseen
-maps, and write the JSON files, the Markdown table and the figures.
+found, aggregate over seeds, compare the modes pairwise, test every input channel causally,
+and test the main models on unseen and held-out maps (``analysis_generalization.py``).
 
 Aggregates over training seeds are ``analysis_stats.seed_statistics`` dicts: ``mean``,
 ``ci95`` (percentile bootstrap over seeds, 10 000 resamples), ``iqm``, ``n``, ``per_seed``.
@@ -17,14 +17,15 @@ from typing import Any
 
 import numpy as np
 import torch
-from analysis_episodes import EvaluationSetting, episode_summary
-from analysis_evaluator import GENERALIZATION_MAP_SEEDS, MultiAgentEvaluator
+from analysis_episodes import episode_summary
+from analysis_evaluator import MultiAgentEvaluator, experiment_evaluator
 from analysis_failures import (
     DECOMPOSITION,
     FAILURE_DEFINITIONS,
     FAILURE_KINDS,
     failure_decomposition,
 )
+from analysis_generalization import evaluate_generalization, evaluate_held_out
 from analysis_information import MEASURES, communication_measures
 from analysis_interventions import (
     CHANNEL_INTERVENTIONS,
@@ -44,15 +45,11 @@ from analysis_messages import (
 from analysis_runs import (
     Experiment,
     best_seed,
-    load_model_pair,
-    model_paths,
     relative_models_dir,
 )
 from analysis_stats import BOOTSTRAP_RESAMPLES, mode_differences, seed_statistics
 from baselines import POLICIES
-from grid_maps import generate_map
-from multi_agent_env import MultiAgentEnv
-from rollout import EVAL_SEED, EpisodeResults, summarize
+from rollout import EVAL_SEED, EpisodeResults
 
 CONDITIONS = ("greedy", "eps")
 MODE_DIFFERENCES = (
@@ -77,20 +74,6 @@ class ExperimentOutcome:
     performance: dict
     communication: dict
     runs: dict[str, dict[str, EpisodeResults]] = field(default_factory=dict)
-
-
-def _evaluator(
-    experiment: Experiment, epsilon: float, mode: str | None = None, seed: int | None = None, **kw
-) -> MultiAgentEvaluator:
-    settings = experiment.settings
-    # Returns are reported under the assignment's reward (the env's default), whatever
-    # reward the agents were trained on; success does not depend on the reward.
-    env = MultiAgentEnv(grid=experiment.grid, max_steps=int(settings["max_steps"]))
-    if mode is None:
-        return MultiAgentEvaluator(env, epsilon=epsilon, **kw)
-    models = load_model_pair(experiment.models_dir, mode, seed)
-    names = tuple(str(path) for path in model_paths(experiment.models_dir, mode, seed))
-    return MultiAgentEvaluator(env, *models, epsilon=epsilon, names=names, **kw)
 
 
 def aggregate(summaries: list[dict]) -> dict[str, Any]:
@@ -170,7 +153,7 @@ def evaluate_mode(
     per_seed_perf, per_seed_comm, seed_runs, evaluators = {}, {}, {}, {}
     target = tuple(int(v) for v in np.argwhere(experiment.grid == 2)[0])
     for seed in experiment.seeds[mode]:
-        evaluator = evaluators[seed] = _evaluator(experiment, epsilon, mode, seed)
+        evaluator = evaluators[seed] = experiment_evaluator(experiment, epsilon, mode, seed)
         runs = seed_runs[seed] = evaluator.run_conditions(num_episodes)
         per_seed_perf[str(seed)] = {
             name: episode_summary(runs[name], target, evaluator.conditions[name])
@@ -233,7 +216,7 @@ def evaluate_experiment(
     baselines = {}
     for name, policy in POLICIES.items():
         factory = partial(lambda grid, make: make(grid, EVAL_SEED), make=policy)
-        evaluator = _evaluator(experiment, epsilon, policy_factory=factory)
+        evaluator = experiment_evaluator(experiment, epsilon, policy_factory=factory)
         results = evaluator.run(num_episodes)
         baselines[name] = episode_summary(results, evaluator.setting.target, 0.0)
     settings = experiment.settings
@@ -269,131 +252,6 @@ def differences_by_pair(successes: dict[str, dict[str, np.ndarray]]) -> dict[str
     }
     pairs = by_condition[CONDITIONS[0]]
     return {pair: {name: by_condition[name][pair] for name in CONDITIONS} for pair in pairs}
-
-
-def models_on_maps(
-    experiment: Experiment, epsilon: float, map_seeds: tuple[int, ...], num_episodes: int
-) -> dict[str, dict[str, np.ndarray]]:
-    """Success of every model pair of ``experiment``, greedy and ε-greedy, on each of
-    ``map_seeds`` (maps of the experiment's size and rules): ``{mode: {condition: (seeds,
-    maps)}}``. Per map, every (mode, seed, condition) runs the same ``num_episodes`` test
-    episodes in one batch (``MultiAgentEvaluator.run_blocks`` with one policy a block)."""
-    evaluators = {
-        (mode, seed): _evaluator(experiment, epsilon, mode, seed)
-        for mode, seeds in experiment.seeds.items()
-        for seed in seeds
-    }
-    host = next(iter(evaluators.values()))
-    blocks = [(pair, name) for pair in evaluators for name in CONDITIONS]
-    policies = [evaluators[pair].policy_factory for pair, _ in blocks]
-    epsilons = [host.conditions[name] for _, name in blocks]
-    rules = (host.setting.reward_mode, host.setting.max_steps, host.setting.obs_window)
-    rates = np.zeros((len(blocks), len(map_seeds)))
-    for k, map_seed in enumerate(map_seeds):
-        setting = EvaluationSetting(generate_map(experiment.grid.shape, map_seed), *rules)
-        runs = host.run_blocks(num_episodes, epsilons, setting=setting, policies=policies)
-        rates[:, k] = [run.successes.mean() for run in runs]
-    result: dict[str, dict[str, np.ndarray]] = {}
-    for mode, seeds in experiment.seeds.items():
-        result[mode] = {
-            name: np.stack([rates[blocks.index(((mode, seed), name))] for seed in seeds])
-            for name in CONDITIONS
-        }
-    return result
-
-
-def evaluate_generalization(experiment: Experiment, num_episodes: int, epsilon: float) -> dict:
-    """Every model pair of ``experiment`` on map seeds 0–9, beside the baseline policies on
-    each map; per map and mode, seed statistics of the success rate."""
-    size = experiment.grid.shape
-    maps: dict[str, dict] = {}
-    for map_seed in GENERALIZATION_MAP_SEEDS:
-        grid = generate_map(size, map_seed)
-        entry: dict[str, Any] = {"target": [int(v) for v in np.argwhere(grid == 2)[0]]}
-        for name, policy in POLICIES.items():
-            factory = partial(lambda g, make: make(g, EVAL_SEED), make=policy)
-            evaluator = MultiAgentEvaluator(
-                MultiAgentEnv(grid=grid, max_steps=int(experiment.settings["max_steps"])),
-                policy_factory=factory,
-            )
-            entry[name] = summarize(evaluator.run(num_episodes, record=False))
-        entry["modes"] = {}
-        maps[str(map_seed)] = entry
-    summary: dict[str, dict] = {}
-    rates = models_on_maps(experiment, epsilon, GENERALIZATION_MAP_SEEDS, num_episodes)
-    for mode, per_mode in rates.items():
-        for k, map_seed in enumerate(maps):
-            maps[map_seed]["modes"][mode] = {
-                name: seed_statistics(per_mode[name][:, k].tolist()) for name in CONDITIONS
-            }
-        summary[mode] = {
-            name: seed_statistics(per_mode[name].mean(axis=1).tolist()) for name in CONDITIONS
-        }
-    return {
-        "trained_map_seed": experiment.settings["map_seed"],
-        "episodes_per_map": num_episodes,
-        "epsilon": epsilon,
-        "map_seeds": list(GENERALIZATION_MAP_SEEDS),
-        "maps": maps,
-        "mean_over_maps": summary,
-        "baselines_mean_over_maps": {
-            name: float(np.mean([entry[name]["success_rate"] for entry in maps.values()]))
-            for name in POLICIES
-        },
-    }
-
-
-HELD_OUT_MAP_SEEDS = tuple(range(1000, 1040))  # maps no model or setting was chosen on
-HEURISTICS = ("explorer", "sweep_explorer", "beacon_explorer")  # memoryless search, no map
-
-
-def evaluate_held_out(experiment: Experiment, num_episodes: int, epsilon: float) -> dict:
-    """Every baseline policy (greedy) and every model pair of ``experiment`` (greedy and
-    ε-greedy) on ``HELD_OUT_MAP_SEEDS``, the same ``num_episodes`` start cells per map.
-
-    ``success_rate[policy]``: a baseline's success per map, with its mean over maps and a
-    95 % bootstrap CI over maps. ``modes[mode][condition]``: ``over_maps``, the mean over
-    seeds on each map, with a CI over maps (comparable with the baselines');
-    ``over_seeds``, each seed's mean over the maps, with a CI over seeds; and
-    ``minus_<heuristic>``, the per-map difference to each memoryless heuristic (paired by
-    map), with a CI over maps."""
-    size, max_steps = experiment.grid.shape, int(experiment.settings["max_steps"])
-    per_map: dict[str, list[float]] = {name: [] for name in POLICIES}
-    for map_seed in HELD_OUT_MAP_SEEDS:
-        env = MultiAgentEnv(grid=generate_map(size, map_seed), max_steps=max_steps)
-        for name, policy in POLICIES.items():
-            factory = partial(
-                lambda g, make, seed: make(g, seed), make=policy, seed=EVAL_SEED + map_seed
-            )
-            results = MultiAgentEvaluator(env, policy_factory=factory).run(
-                num_episodes, record=False
-            )
-            per_map[name].append(float(results.successes.mean()))
-    modes: dict[str, dict] = {}
-    for mode, per_mode in models_on_maps(
-        experiment, epsilon, HELD_OUT_MAP_SEEDS, num_episodes
-    ).items():
-        modes[mode] = {}
-        for name in CONDITIONS:
-            rates = per_mode[name]  # (seeds, maps)
-            map_means = rates.mean(axis=0)  # (maps,)
-            modes[mode][name] = {
-                "over_maps": seed_statistics(map_means.tolist()),
-                "over_seeds": seed_statistics(rates.mean(axis=1).tolist()),
-            } | {
-                f"minus_{h}": seed_statistics((map_means - np.array(per_map[h])).tolist())
-                for h in HEURISTICS
-            }
-    return {
-        "map_seeds": list(HELD_OUT_MAP_SEEDS),
-        "episodes_per_map": num_episodes,
-        "epsilon": epsilon,
-        "trained_map_seed": experiment.settings["map_seed"],
-        "success_rate": {name: seed_statistics(rates) for name, rates in per_map.items()},
-        "modes": modes,
-        "note": "success_rate, over_maps and minus_*: ci95 and per_seed are over maps; "
-        "over_seeds: over training seeds",
-    }
 
 
 def evaluate_all(

@@ -1,22 +1,25 @@
-"""Figures of Problem 2's evaluation: episode paths, the message per grid cell, the channel
-interventions and an animated episode. Figures use ``matplotlib.figure.Figure`` (no pyplot)
-and are written atomically. Each static figure is drawn at the width (inches) at which the
-report places it (``WIDTHS``), with text of at least ``MIN_FONT`` points: legible when printed."""
+"""Figures of Problem 2's evaluation: episode paths (and the choice of the episodes shown),
+the message per grid cell, the channel interventions and an animated episode. Figures use
+``matplotlib.figure.Figure`` (no pyplot) and are written atomically. Each static figure is
+drawn at the width (inches) at which the report places it (``WIDTHS``), with text of at
+least ``MIN_FONT`` points: legible when printed."""
 
 from __future__ import annotations
 
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from _atomic import temporary_path_for
-from analysis_traces import EpisodeTrace
+from analysis_failures import FAILURE_KINDS, classify_failures
 from grid_maps import OBSTACLE, TARGET
 from matplotlib.animation import FuncAnimation, PillowWriter
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
+from rollout import EpisodeResults
 
 AGENT_COLOURS = ("#1f77b4", "#d62728")  # A blue, B red
 AGENT_OFFSETS = (-0.12, 0.12)  # so that the two paths stay apart where they overlap
@@ -28,6 +31,73 @@ WIDTHS = {  # inches; report/*.typ places each figure at exactly this width, i.e
     "failure_decomposition": 4.3,
 }
 MIN_FONT = 9  # points, at print size
+
+
+# ------------------------------------------------------- the episodes shown
+@dataclass
+class EpisodeTrace:
+    """One recorded episode: positions (L + 1, 2, 2) as (row, col), messages sent (L, 2)."""
+
+    positions: np.ndarray
+    messages: np.ndarray
+    success: bool
+    description: str = ""
+
+    @property
+    def length(self) -> int:
+        return len(self.messages)
+
+
+def episode_trace(results: EpisodeResults, index: int, description: str = "") -> EpisodeTrace:
+    """Episode ``index`` of recorded ``results``, cut to its length."""
+    if results.trajectories is None:
+        raise ValueError("episode traces need recorded episodes (record=True)")
+    length = int(results.lengths[index])
+    return EpisodeTrace(
+        positions=results.trajectories["positions"][index, : length + 1],
+        messages=results.trajectories["messages"][index, :length],
+        success=bool(results.successes[index]),
+        description=description,
+    )
+
+
+def representative_success(results: EpisodeResults, label: str) -> EpisodeTrace | None:
+    """The first successful episode whose length is the median successful length."""
+    successful = np.flatnonzero(results.successes)
+    if successful.size == 0:
+        return None
+    lengths = results.lengths[successful]
+    index = successful[np.argmin(np.abs(lengths - np.median(lengths)))]
+    return episode_trace(results, int(index), label)
+
+
+def representative_failure(
+    results: EpisodeResults, target: tuple[int, int], label: str
+) -> EpisodeTrace | None:
+    """The first failed episode of the most common failure kind."""
+    kinds = classify_failures(results, target)
+    failed = kinds[kinds >= 0]
+    if failed.size == 0:
+        return None
+    common = int(np.bincount(failed, minlength=len(FAILURE_KINDS)).argmax())
+    index = int(np.flatnonzero(kinds == common)[0])
+    return episode_trace(results, index, f"{FAILURE_KINDS[common]}, {label}")
+
+
+def representative_traces(
+    runs: dict[str, EpisodeResults], target: tuple[int, int]
+) -> list[EpisodeTrace | None]:
+    """[successful, failed] episode, each from the greedy run if it has one, else from the
+    ε-greedy run (``runs`` keyed ``greedy`` and ``eps``); None where neither has one."""
+    order = [(name, "greedy" if name == "greedy" else "ε-greedy") for name in ("greedy", "eps")]
+    success = failure = None
+    for name, label in order:
+        if name in runs:
+            success = success or representative_success(runs[name], label)
+            failure = failure or representative_failure(runs[name], target, label)
+    return [success, failure]
+
+
 FONT_SIZES = {
     "font.size": 10,
     "axes.titlesize": 10,

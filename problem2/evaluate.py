@@ -17,9 +17,12 @@ with a note). A bad model (missing, damaged, unlisted, NaN Q-values, a message o
 
 The course interface lives here: :func:`load_trained_models`, :class:`MultiAgentEvaluator`
 (``analysis_evaluator.py``) and :func:`create_evaluation_report` (``analysis_report.py``).
-The run of ``python evaluate.py``: ``analysis_pipeline.py`` evaluates (episodes through
-``rollout.run_episodes``), ``analysis_outputs.py`` writes ``evaluation_results/`` beside the
-agent_models folder (see that module for the list of files).
+The run of ``python evaluate.py``: ``analysis_pipeline.py`` evaluates the training maps and
+``analysis_generalization.py`` the other maps (episodes through ``rollout.run_episodes``;
+measures from the recorded episodes: ``analysis_failures``, ``analysis_messages``,
+``analysis_information``, ``analysis_interventions``, ``analysis_stats``), and
+``analysis_outputs.py`` writes ``evaluation_results/`` beside the agent_models folder (see
+that module for the list of files).
 """
 
 from __future__ import annotations
