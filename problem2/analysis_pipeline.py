@@ -53,8 +53,9 @@ from rollout import EVAL_SEED, EpisodeResults
 
 CONDITIONS = ("greedy", "eps")
 MODE_DIFFERENCES = (
-    "<later>_minus_<earlier>: success of one mode minus another (mean over its seeds of each "
-    "seed's success rate); ci95: percentile bootstrap, each resample redrawing the test "
+    "each pair of modes, keyed {later}_minus_{earlier} in the order independent, comm, full: "
+    "success of the later minus the earlier (a mode's success is the mean over its seeds of "
+    "each seed's success rate); ci95: percentile bootstrap, each resample redrawing the test "
     "episodes once for all modes and seeds (paired by episode set) and, independently in "
     "each mode, its training seeds; ci95_seeds_only: the same with the episode set held "
     "fixed; established: ci95 excludes 0"

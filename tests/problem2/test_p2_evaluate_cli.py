@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 import torch
 from analysis_episodes import model_policy
+from analysis_evaluator import experiment_evaluator
+from analysis_generalization import models_on_maps
 from analysis_information import MEASURES
 from analysis_interventions import INTERVENTIONS
 from analysis_runs import best_seed, discover_experiments, sha256_of
@@ -443,3 +445,19 @@ def test_baselines_take_both_list_forms(tmp_path: Path) -> None:
         assert list(json.loads(output.read_text(encoding="utf-8"))["maps"]) == ["0", "1"]
     with pytest.raises(SystemExit):
         baselines.main(["--map_seeds", "0,x"])
+
+
+def test_models_on_maps_batches_every_pair_as_if_run_alone(tiny_root: Path) -> None:
+    """Many model pairs in one batch (one policy a block) give each pair's own results."""
+    experiment = discover_experiments(tiny_root / "agent_models")[0]
+    maps = (1000, 1001)
+    batched = models_on_maps(experiment, 0.05, maps, 30)
+    for mode, seeds in experiment.seeds.items():
+        for k, seed in enumerate(seeds):
+            alone = experiment_evaluator(experiment, 0.05, mode, seed).test_generalization(
+                num_episodes=30, oracle=False, map_seeds=maps
+            )
+            assert alone["map_seeds"] == list(maps)
+            for condition in ("greedy", "eps"):
+                rates = [alone["maps"][str(m)][condition] for m in maps]
+                assert batched[mode][condition][k].tolist() == rates
