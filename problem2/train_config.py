@@ -122,6 +122,19 @@ class TrainConfig:
     """parallel training processes (default: the available cores; at most one per run)"""
     overwrite: bool = False
     """replace a batch with other settings in --output_dir (see the rule below)"""
+    map_pool: int = 0
+    """0: train on the --map_seed map; N > 0: on a pool of N generated maps (map_pool.py), a new
+    one drawn at each episode start, validation on separate maps (map_pool_study.py runs it)"""
+    validation_maps: int = 200
+    """with --map_pool: generated validation maps of the periodic evaluations (1 or more)"""
+    share_weights: bool = False
+    """parameter sharing: both agents use one set of weights (same start, summed gradient),
+    a departure from the assignment's independent learners"""
+    coverage_bonus: float = 0.0
+    """reward shaping for learning only (>= 0): added per grid cell that enters either
+    agent's 3x3 view for the first time in the episode"""
+    on_target_bonus: float = 0.0
+    """reward shaping for learning only (>= 0): added per agent standing on the target"""
 
     def __post_init__(self) -> None:
         # --grid_size 10 and --grid_size 10 10 (the skeleton's list) mean the same grid.
@@ -295,6 +308,11 @@ FIELD_CHECKS: dict[str, Check] = {
     "output_dir": _check_output_dir,
     "workers": _int_in(1),
     "overwrite": _boolean,
+    "map_pool": _int_in(0, 100_000),
+    "validation_maps": _int_in(1, 100_000),
+    "share_weights": _boolean,
+    "coverage_bonus": _number_in(0.0, math.inf, high_open=True),
+    "on_target_bonus": _number_in(0.0, math.inf, high_open=True),
 }
 
 

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
+from map_pool import training_maps, validation_maps
 from models import export_policy, observation_mask
 from multi_agent_env import NUM_ACTIONS, MultiAgentEnv, VectorMultiAgentEnv
 from paired_networks import FlatAdam, PairedQNetworks
@@ -129,6 +130,8 @@ class MultiAgentTrainer:
         self.mask = torch.tensor(observation_mask(self.mode, self.obs_dim))
         self.online = PairedQNetworks(self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, cfg.dueling)
         self.target = PairedQNetworks(self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, cfg.dueling)
+        if cfg.share_weights:  # one set of weights: B starts as a copy of A
+            self.online.load_agents([self.online.agent(0)] * 2)
         self.target.load_state_dict(self.online.state_dict())
         self.target.requires_grad_(False)
         self.optimizer = FlatAdam(self.online.flat, lr=cfg.lr)  # = torch.optim.Adam, faster
@@ -159,15 +162,26 @@ class MultiAgentTrainer:
         self._episode_rollout: Rollout | None = None  # for train_episode()
 
     # ------------------------------------------------------------------ acting
-    def make_vector_env(self, n_envs: int, seed: int | None) -> VectorMultiAgentEnv:
-        """``n_envs`` copies of the training map with the reward the trainer learns from."""
+    def make_vector_env(
+        self, n_envs: int, seed: int | None, validation: bool = False
+    ) -> VectorMultiAgentEnv:
+        """``n_envs`` copies of the training map with the reward the trainer learns from;
+        with ``map_pool`` > 0, copies that draw from the training maps (tracking the cells
+        seen, for the coverage bonus) or, for ``validation``, from the validation maps."""
+        cfg, size = self.cfg, self.env.grid_size
+        maps = {}
+        if cfg.map_pool > 0:
+            pool = validation_maps(cfg.validation_maps, size) if validation else None
+            maps = dict(map_pool=training_maps(cfg.map_pool, size) if pool is None else pool)
+            maps["track_coverage"] = not validation and cfg.coverage_bonus > 0
         return VectorMultiAgentEnv(
             n_envs,
-            grid=self.env.grid,
+            grid=None if maps else self.env.grid,
             obs_window=self.env.obs_window,
             max_steps=self.env.max_steps,
             seed=seed,
-            reward_mode=self.cfg.reward_mode,
+            reward_mode=cfg.reward_mode,
+            **maps,
         )
 
     @property
@@ -303,12 +317,25 @@ class MultiAgentTrainer:
             loss_tensor, self.last_td_errors, q_taken = self.td_loss(batch)
             loss_tensor.backward()
             loss, mean_q = float(loss_tensor.detach()), float(q_taken.mean())
+        if self.cfg.share_weights:  # one shared parameter: the sum of both agents' gradients
+            for gradient in self.online.gradients():  # each (2, ...), agent axis first
+                gradient.copy_(gradient.sum(dim=0, keepdim=True).expand_as(gradient))
         self.online.clip_grad_norm_(self.cfg.max_grad_norm)
         self.optimizer.step()
         self.updates += 1
         self._losses.append(loss)
         self._mean_qs.append(mean_q)
         return loss
+
+    def learning_rewards(self, rewards: np.ndarray, info: dict[str, np.ndarray]) -> np.ndarray:
+        """The team rewards (N,) plus the optional shaping, which only learning sees:
+        ``coverage_bonus`` per newly seen cell, ``on_target_bonus`` per agent on the target."""
+        cfg = self.cfg
+        if cfg.on_target_bonus > 0:
+            rewards = rewards + cfg.on_target_bonus * info["on_target"].sum(axis=1)
+        if cfg.coverage_bonus > 0 and "newly_seen" in info:
+            rewards = rewards + cfg.coverage_bonus * info["newly_seen"]
+        return rewards
 
     # ------------------------------------------------------------------ schedules
     def update_and_sync_target(self) -> None:
@@ -366,7 +393,8 @@ class MultiAgentTrainer:
             actions, messages = self.act(rollout.obs, self.epsilon, self.rng, noisy_messages=True)
             next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
             # 3. Store. Only "both on target" is terminal; the time limit is a cut-off.
-            self.store(rollout, actions, messages, rewards, info["final_obs"], terminated)
+            learned = self.learning_rewards(rewards, info)
+            self.store(rollout, actions, messages, learned, info["final_obs"], terminated)
             finished = terminated | truncated
             self.recent_returns.extend(rollout.advance(next_obs, rewards, finished).tolist())
             self.recent_successes.extend(terminated[finished].tolist())
@@ -399,7 +427,8 @@ class MultiAgentTrainer:
         while True:
             actions, messages = self.act(rollout.obs, self.epsilon, self.rng, noisy_messages=True)
             next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
-            self.store(rollout, actions, messages, rewards, info["final_obs"], terminated)
+            learned = self.learning_rewards(rewards, info)
+            self.store(rollout, actions, messages, learned, info["final_obs"], terminated)
             finished = terminated | truncated
             returns = rollout.advance(next_obs, rewards, finished)
             self.env_steps += 1
@@ -415,8 +444,9 @@ class MultiAgentTrainer:
         self, num_episodes: int = 10, epsilon: float = 0.0, seed: int = EVAL_SEED
     ) -> tuple[float, float]:
         """(mean reward, success rate) over fixed episodes (the test episodes by default),
-        under the reward the trainer learns from."""
-        env = self.make_vector_env(min(num_episodes, 500), None)
+        under the reward the trainer learns from (unshaped); on the validation maps when
+        training on a map pool."""
+        env = self.make_vector_env(min(num_episodes, 500), None, validation=True)
         summary = evaluate_policy(env, self.policy(epsilon), num_episodes, seed=seed)
         return summary["mean_return"], summary["success_rate"]
 
