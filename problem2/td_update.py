@@ -23,12 +23,14 @@ class TransitionBatch:
     """B joint transitions, agent axis first (A, then B). Filled in place per update."""
 
     obs: torch.Tensor  # (2, B, D) observations
-    next_obs: torch.Tensor  # (2, B, D) next observations
+    next_obs: torch.Tensor  # (2, B, D) next observations, the TD target bootstraps from
+    last_obs: torch.Tensor  # (2, B, D) observations one step before next_obs (= obs if n = 1)
     prev_obs: torch.Tensor  # (2, B, D) each agent's observation one step earlier (DIAL)
     has_prev: torch.Tensor  # (B,) 1.0 where prev_obs is stored, else 0.0
     actions: torch.Tensor  # (2, B) int64
     reward: torch.Tensor  # (B,) the team reward
     done: torch.Tensor  # (B,) 1.0 where both agents reached the target (terminal)
+    discount: torch.Tensor  # (B,) γ^k of the k-step return, 0 where terminal: γ (1 − done) if k = 1
     weights: torch.Tensor  # (B,) importance weights (ones without prioritised replay)
 
     @classmethod
@@ -39,11 +41,13 @@ class TransitionBatch:
         return cls(
             obs=states(),
             next_obs=states(),
+            last_obs=states(),
             prev_obs=states(),
             has_prev=torch.zeros(batch_size),
             actions=torch.zeros(2, batch_size, dtype=torch.int64),
             reward=torch.zeros(batch_size),
             done=torch.zeros(batch_size),
+            discount=torch.zeros(batch_size),
             weights=torch.ones(batch_size),
         )
 
@@ -55,6 +59,8 @@ class TransitionBatch:
             "state_B": self.obs[1],
             "next_state_A": self.next_obs[0],
             "next_state_B": self.next_obs[1],
+            "last_state_A": self.last_obs[0],
+            "last_state_B": self.last_obs[1],
             "prev_state_A": self.prev_obs[0],
             "prev_state_B": self.prev_obs[1],
             "has_prev": self.has_prev,
@@ -62,6 +68,7 @@ class TransitionBatch:
             "action_B": self.actions[1],
             "reward": self.reward,
             "done": self.done,
+            "discount": self.discount,
         }
         return {name: view.numpy() for name, view in views.items() if name in stored_fields}
 
@@ -76,6 +83,8 @@ class FastTDGradient:
     row), masked inputs x, batch of B with importance weights w:
 
         h = relu(W1 x + b1),  q = W2[:A] h + b2[:A],  δ = q[a] − y,
+        y = R + d · Q_target(s', argmax_a Q_online(s', a)),  R, d: the k-step reward and
+        discount of the batch (k = 1: R = r, d = γ (1 − done)),
         L = Σ_i (1/B) Σ_b w_b huber(δ_ib),  ∂L/∂q[a] = clamp(δ, −1, 1) · w / B.
 
     Backward: the head gradient g (K, B) is zero except ∂L/∂q[a] in the taken action's
@@ -85,9 +94,10 @@ class FastTDGradient:
     partner's message logit z on its previous observation, so ∂L/∂s = W1[:, m]ᵀ g_h and
     ∂L/∂z = ∂L/∂s · s(1 − s) (zero where no previous observation is stored); that flows
     back through the sender's message row and hidden layer exactly as above.
-    The TD target y (Double DQN, next message from the partner's target network) carries
-    no gradient. Inputs and activations are held feature-major, (2, features, B): the
-    small matrix products run several times faster that way on a CPU.
+    The TD target y (Double DQN; the message in s' from the partner's target network on
+    its observation one step before s') carries no gradient. Inputs and activations are
+    held feature-major, (2, features, B): the small matrix products run several times
+    faster that way on a CPU.
     Writes ``online.flat.grad`` and returns (loss, δ (2, B), mean Q(s, a)).
     """
 
@@ -96,7 +106,6 @@ class FastTDGradient:
         online: PairedQNetworks,
         target: PairedQNetworks,
         mask: torch.Tensor,
-        gamma: float,
         dial: bool,
         comm_noise: float,
         noise_rng: torch.Generator,
@@ -105,7 +114,7 @@ class FastTDGradient:
         if online.dueling:
             raise ValueError("the hand-written gradient covers the plain network only")
         self.online, self.target, self.mask = online, target, mask.view(-1, 1)
-        self.gamma, self.dial, self.comm_noise, self.noise_rng = gamma, dial, comm_noise, noise_rng
+        self.dial, self.comm_noise, self.noise_rng = dial, comm_noise, noise_rng
         self.weighted = weighted  # importance weights other than 1 (prioritised replay)
         self.num_actions = online.num_actions
         self.message = online.input_dim - 2  # input index of the received message
@@ -138,6 +147,7 @@ class FastTDGradient:
             both = 2 * b if self.dial else b  # next (and previous) observations
             shapes = dict(
                 x=(online.input_dim, b), next_prev_x=(online.input_dim, both),
+                last_x=(online.input_dim, b),
                 target_hidden=(online.hidden_dim, b), next_logit=(1, b),
                 next_prev_hidden=(online.hidden_dim, both), next_prev_heads=(online.head_dim, both),
                 next_target_hidden=(online.hidden_dim, b), next_target_q=(self.num_actions, b),
@@ -174,8 +184,9 @@ class FastTDGradient:
         next_x = torch.mul(batch.next_obs.transpose(1, 2), self.mask, out=buf["next_x"])
         if self.dial:
             torch.mul(batch.prev_obs.transpose(1, 2), self.mask, out=buf["prev_x"])
-            # Next message: the partner's target network on the stored observation.
-            target_hidden = target.hidden(x, buf["target_hidden"])
+            # Next message: the partner's target network on its observation before s'.
+            last_x = torch.mul(batch.last_obs.transpose(1, 2), self.mask, out=buf["last_x"])
+            target_hidden = target.hidden(last_x, buf["target_hidden"])
             next_logit = target.message(target_hidden, buf["next_logit"])  # (2, 1, B)
             torch.sigmoid(next_logit.flip(0).squeeze(1), out=buf["next_x_message"])
         # One online pass: Q on the next observations (for the Double DQN argmax) and, with
@@ -199,8 +210,7 @@ class FastTDGradient:
             target.hidden(next_x, buf["next_target_hidden"]), buf["next_target_q"]
         )
         next_value = next_target_q.gather(1, best_next).squeeze(1)  # (2, B)
-        y = torch.add(batch.reward, next_value, alpha=self.gamma)  # r + γ (1 - done) Q'
-        y.addcmul_(batch.done, next_value, value=-self.gamma)
+        y = torch.addcmul(batch.reward, batch.discount, next_value)  # R + d Q'
         # Forward on the current observation, Huber loss.
         hidden = online.hidden(x, buf["hidden"])  # (2, H, B)
         q = online.q(hidden, buf["q"])  # (2, A, B)

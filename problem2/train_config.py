@@ -71,6 +71,9 @@ class TrainConfig:
     """final learning rate as a fraction of lr (0..1), reached linearly at the end of the run"""
     gamma: float = 0.99
     """discount factor, in [0, 1)"""
+    n_step: int = 1
+    """steps of reward in each TD target (1 or more): r_t + ... + gamma^(n-1) r_(t+n-1) +
+    gamma^n max Q(s_(t+n)), fewer where the episode ends first (no bootstrap at a terminal)"""
     epsilon_start: float = 1.0
     """initial exploration rate, in [0, 1]"""
     epsilon_end: float = 0.05
@@ -285,6 +288,7 @@ FIELD_CHECKS: dict[str, Check] = {
     "lr": _number_in(0.0, math.inf, low_open=True, high_open=True),
     "lr_end_factor": _number_in(0.0, 1.0),
     "gamma": _number_in(0.0, 1.0, high_open=True),
+    "n_step": _int_in(1),
     "epsilon_start": _number_in(0.0, 1.0),
     "epsilon_end": _number_in(0.0, 1.0),
     "epsilon_decay": _check_epsilon_decay,

@@ -31,7 +31,7 @@ from map_pool import training_maps, validation_maps
 from models import export_policy, observation_mask
 from multi_agent_env import NUM_ACTIONS, MultiAgentEnv, VectorMultiAgentEnv
 from paired_networks import FlatAdam, PairedQNetworks
-from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
+from replay_buffer import NStepWindow, PrioritizedReplayBuffer, ReplayBuffer
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED, PolicyFn, evaluate_policy
 from td_update import FastTDGradient, TransitionBatch
 from train_config import TrainConfig
@@ -80,12 +80,14 @@ class Rollout:
     prev_obs: np.ndarray  # (N, 2, D) observations one step earlier (zeros at an episode start)
     has_prev: np.ndarray  # (N,) float32, 1.0 where prev_obs is real
     returns: np.ndarray  # (N,) return of the running episodes
+    window: NStepWindow  # the steps whose n-step transitions are not complete yet
 
     @classmethod
-    def start(cls, env: VectorMultiAgentEnv) -> Rollout:
+    def start(cls, env: VectorMultiAgentEnv, n_step: int = 1, gamma: float = 0.99) -> Rollout:
         obs = env.reset()
         n = env.n_envs
-        return cls(env, obs, np.zeros_like(obs), np.zeros(n, np.float32), np.zeros(n))
+        zeros = np.zeros(n, np.float32)
+        return cls(env, obs, np.zeros_like(obs), zeros, np.zeros(n), NStepWindow(n_step, gamma, n))
 
     def advance(
         self, next_obs: np.ndarray, rewards: np.ndarray, finished: np.ndarray
@@ -125,7 +127,7 @@ class MultiAgentTrainer:
         self.rng = np.random.default_rng(self.seed)
         self.noise_rng = torch.Generator().manual_seed(self.seed)
 
-        self.rollout = Rollout.start(self.make_vector_env(cfg.num_envs, self.seed))
+        self.rollout = self.start_rollout(cfg.num_envs, self.seed)
         self.obs_dim = self.rollout.env.obs_dim
         self.mask = torch.tensor(observation_mask(self.mode, self.obs_dim))
         self.online = PairedQNetworks(self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, cfg.dueling)
@@ -142,7 +144,7 @@ class MultiAgentTrainer:
             None
             if cfg.dueling
             else FastTDGradient(
-                self.online, self.target, self.mask, cfg.gamma, self.dial, cfg.comm_noise,
+                self.online, self.target, self.mask, self.dial, cfg.comm_noise,
                 self.noise_rng, weighted=cfg.prioritized,
             )
         )  # fmt: skip
@@ -183,6 +185,9 @@ class MultiAgentTrainer:
             reward_mode=cfg.reward_mode,
             **maps,
         )
+
+    def start_rollout(self, n_envs: int, seed: int | None) -> Rollout:
+        return Rollout.start(self.make_vector_env(n_envs, seed), self.cfg.n_step, self.cfg.gamma)
 
     @property
     def network_A(self) -> torch.nn.Module:
@@ -227,25 +232,29 @@ class MultiAgentTrainer:
 
     # ------------------------------------------------------------------ learning
     def store(
-        self, rollout: Rollout, actions: np.ndarray, messages: np.ndarray,
-        rewards: np.ndarray, next_obs: np.ndarray, terminated: np.ndarray,
+        self, rollout: Rollout, actions: np.ndarray, messages: np.ndarray, rewards: np.ndarray,
+        next_obs: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
     ) -> None:  # fmt: skip
-        """Push N joint transitions; with each, the observations one step earlier (DIAL).
-        ``next_obs`` is the true next observation also where an episode was cut off."""
-        fields = dict(
+        """Push the joint transitions that this step of the N episodes completes (N of them
+        with n_step 1; see :class:`replay_buffer.NStepWindow`); with each, the observations
+        one step before its start (DIAL). ``next_obs`` is the true next observation also
+        where an episode was cut off (``truncated``)."""
+        start = dict(
             state_A=rollout.obs[:, 0], state_B=rollout.obs[:, 1],
             action_A=actions[:, 0], action_B=actions[:, 1],
-            comm_A=messages[:, 0], comm_B=messages[:, 1], reward=rewards,
-            next_state_A=next_obs[:, 0], next_state_B=next_obs[:, 1], done=terminated,
+            comm_A=messages[:, 0], comm_B=messages[:, 1],
         )  # fmt: skip
         if not len(self.replay_buffer) or "prev_state_A" in self.replay_buffer.field_names:
             # (A buffer first filled by hand holds the ten fields only.)
-            fields |= dict(
+            start |= dict(
                 prev_state_A=rollout.prev_obs[:, 0],
                 prev_state_B=rollout.prev_obs[:, 1],
                 has_prev=rollout.has_prev,
             )
-        self.replay_buffer.push_batch(**fields)
+        finished = terminated | truncated
+        fields = rollout.window.add(start, rewards, next_obs, rollout.obs, terminated, finished)
+        if fields:
+            self.replay_buffer.push_batch(**fields)
 
     def sample(self, batch_size: int) -> TransitionBatch:
         """A batch from the replay buffer, in tensors reused from update to update."""
@@ -255,6 +264,9 @@ class MultiAgentTrainer:
             self._batches = {(batch_size, stored): (batch, batch.buffer_views(stored))}
         batch, views = self._batches[(batch_size, stored)]
         _, weights, self.last_indices = self.replay_buffer.sample_batch(batch_size, out=views)
+        if "discount" not in stored:  # one-step transitions: d = γ (1 − done), s' after s
+            torch.mul(batch.done, -self.cfg.gamma, out=batch.discount).add_(self.cfg.gamma)
+            batch.last_obs.copy_(batch.obs)
         if self.cfg.prioritized:
             batch.weights.copy_(torch.from_numpy(weights))
         return batch
@@ -263,14 +275,16 @@ class MultiAgentTrainer:
         """The Huber TD loss, summed over both agents (the assignment's L = L_A + L_B).
 
         Returns (loss with gradient, TD errors δ (2, B), Q(s, a) (2, B)), the last two
-        detached. Terminal only when both reached the target; Double-DQN target."""
+        detached. Terminal only when both reached the target; Double-DQN target. With
+        n-step returns R is the discounted reward of k <= n steps and d = γ^k (0 where
+        terminal); with k = 1 that is r and γ (1 − done)."""
         obs, next_obs = batch.obs * self.mask, batch.next_obs * self.mask
         if self.dial:
             obs, next_obs = self.splice_messages(batch, obs, next_obs)
-        with torch.no_grad():  # y = r + γ (1 − done) Q_target(s', argmax_a Q_online(s', a))
+        with torch.no_grad():  # y = R + d Q_target(s', argmax_a Q_online(s', a))
             best_next = self.online(next_obs)[0].max(dim=-1, keepdim=True).indices
             next_value = self.target(next_obs)[0].gather(-1, best_next)[..., 0]
-            target = batch.reward + self.cfg.gamma * (1.0 - batch.done) * next_value
+            target = batch.reward + batch.discount * next_value
         q_taken = self.online(obs)[0].gather(-1, batch.actions.unsqueeze(-1))[..., 0]
         per_sample = F.smooth_l1_loss(q_taken, target, reduction="none")  # (2, B)
         loss = (per_sample * batch.weights).mean(dim=1).sum()
@@ -287,7 +301,10 @@ class MultiAgentTrainer:
         with gradient and with noise on the logit, lets A's TD loss train B's message
         head (and vice versa). Where no previous observation is stored (an episode start,
         or a transition pushed by hand) the stored message stays. The message in the next
-        observation comes from the partner's target network on ``obs``, without gradient.
+        observation s' comes from the partner's target network, without gradient, on the
+        partner's observation one step before s' (``last_obs``: ``obs`` itself for one-step
+        transitions), as it would have been sent; with n-step returns the message that
+        actually arrived was sent by an older network with exploration noise.
         """
         m = self.obs_dim - 2
         _, logits = self.online(batch.prev_obs * self.mask)
@@ -297,7 +314,8 @@ class MultiAgentTrainer:
         has_prev = batch.has_prev.view(1, -1, 1) > 0
         received = torch.where(has_prev, torch.sigmoid(logits).flip(0), obs[..., m : m + 1])
         with torch.no_grad():
-            next_received = torch.sigmoid(self.target(obs)[1]).flip(0)
+            last_obs = batch.last_obs * self.mask
+            next_received = torch.sigmoid(self.target(last_obs)[1]).flip(0)
 
         def with_message(x: torch.Tensor, message: torch.Tensor) -> torch.Tensor:
             return torch.cat([x[..., :m], message, x[..., m + 1 :]], dim=-1)
@@ -394,7 +412,9 @@ class MultiAgentTrainer:
             next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
             # 3. Store. Only "both on target" is terminal; the time limit is a cut-off.
             learned = self.learning_rewards(rewards, info)
-            self.store(rollout, actions, messages, learned, info["final_obs"], terminated)
+            self.store(
+                rollout, actions, messages, learned, info["final_obs"], terminated, truncated
+            )
             finished = terminated | truncated
             self.recent_returns.extend(rollout.advance(next_obs, rewards, finished).tolist())
             self.recent_successes.extend(terminated[finished].tolist())
@@ -422,13 +442,15 @@ class MultiAgentTrainer:
         """Play one episode in a single environment, learning as :meth:`train` does;
         returns (episode_reward, success)."""
         if self._episode_rollout is None:
-            self._episode_rollout = Rollout.start(self.make_vector_env(1, self.seed + 1))
+            self._episode_rollout = self.start_rollout(1, self.seed + 1)
         rollout, cfg = self._episode_rollout, self.cfg
         while True:
             actions, messages = self.act(rollout.obs, self.epsilon, self.rng, noisy_messages=True)
             next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
             learned = self.learning_rewards(rewards, info)
-            self.store(rollout, actions, messages, learned, info["final_obs"], terminated)
+            self.store(
+                rollout, actions, messages, learned, info["final_obs"], terminated, truncated
+            )
             finished = terminated | truncated
             returns = rollout.advance(next_obs, rewards, finished)
             self.env_steps += 1

@@ -133,7 +133,7 @@ def collect(trainer: MultiAgentTrainer, steps: int) -> list[np.ndarray]:
         actions, messages = trainer.act(rollout.obs, 1.0, trainer.rng, True)
         next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
         learned.append(trainer.learning_rewards(rewards, info) - rewards)
-        trainer.store(rollout, actions, messages, rewards, info["final_obs"], terminated)
+        trainer.store(rollout, actions, messages, rewards, info["final_obs"], terminated, truncated)
         rollout.advance(next_obs, rewards, terminated | truncated)
     return learned
 

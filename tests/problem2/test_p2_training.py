@@ -54,7 +54,7 @@ def collect(trainer: train.MultiAgentTrainer, steps: int) -> None:
     for _ in range(steps):
         actions, messages = trainer.act(rollout.obs, trainer.epsilon, trainer.rng, True)
         next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
-        trainer.store(rollout, actions, messages, rewards, info["final_obs"], terminated)
+        trainer.store(rollout, actions, messages, rewards, info["final_obs"], terminated, truncated)
         rollout.advance(next_obs, rewards, terminated | truncated)
 
 
