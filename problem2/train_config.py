@@ -127,7 +127,8 @@ class TrainConfig:
     """replace a batch with other settings in --output_dir (see the rule below)"""
     map_pool: int = 0
     """0: train on the --map_seed map; N > 0: on a pool of N generated maps (map_pool.py), a new
-    one drawn at each episode start, validation on separate maps (map_pool_study.py runs it)"""
+    one drawn at each episode start, periodic validation on other generated maps (run it with
+    map_pool_study.py: train.py's final selection evaluation plays the --map_seed map)"""
     validation_maps: int = 200
     """with --map_pool: generated validation maps of the periodic evaluations (1 or more)"""
     share_weights: bool = False

@@ -15,10 +15,10 @@ from grid_maps import (
     ACTION_DELTAS,
     FREE,
     NUM_ACTIONS,
-    OBSTACLE,
     OFF_GRID,
     TARGET,
     check_grid,
+    check_grid_stack,
     generate_map,
 )
 
@@ -44,46 +44,6 @@ def _check_seed(seed: object, name: str = "seed") -> int | None:
     if seed is not None and (not _is_integer(seed) or seed < 0):
         raise ValueError(f"{name} must be None or a non-negative integer, got {seed!r}")
     return None if seed is None else int(seed)
-
-
-def _check_stack(maps: np.ndarray, name: str) -> np.ndarray:
-    """``maps`` (M, H, W) as a read-only int64 stack, or ValueError naming the first bad
-    map: what :func:`grid_maps.check_grid` checks, vectorised over the stack (connectivity
-    by flood-filling every map at once from its target)."""
-    maps = np.asarray(maps)
-    if maps.ndim != 3 or len(maps) == 0 or maps.dtype.kind not in "iu":
-        raise ValueError(
-            f"{name} must be a non-empty integer stack of maps (M, H, W), got "
-            f"{maps.dtype} {maps.shape}"
-        )
-    reached = maps == TARGET
-    open_cells = maps != OBSTACLE
-    while True:  # grow the set reachable from the target by one move per pass
-        grown = reached.copy()
-        grown[:, 1:] |= reached[:, :-1]
-        grown[:, :-1] |= reached[:, 1:]
-        grown[:, :, 1:] |= reached[:, :, :-1]
-        grown[:, :, :-1] |= reached[:, :, 1:]
-        grown &= open_cells
-        if np.array_equal(grown, reached):
-            break
-        reached = grown
-    well_formed = (
-        ((maps == FREE) | (maps == OBSTACLE) | (maps == TARGET)).all(axis=(1, 2))
-        & ((maps == TARGET).sum(axis=(1, 2)) == 1)
-        & ((maps == FREE).sum(axis=(1, 2)) >= 2)
-        & (reached | ~open_cells).all(axis=(1, 2))
-    )
-    if not well_formed.all():
-        index = int(np.argmin(well_formed))
-        try:
-            check_grid(maps[index])  # names the problem
-        except ValueError as error:
-            raise ValueError(f"{name}[{index}]: {error}") from error
-    check_grid(maps[0])  # the size rules
-    stack = maps.astype(np.int64)
-    stack.flags.writeable = False
-    return stack
 
 
 class VectorMultiAgentEnv:
@@ -144,7 +104,7 @@ class VectorMultiAgentEnv:
         self._draw_maps = map_pool is not None
         if grids is not None or map_pool is not None:
             stacked = grids if grids is not None else map_pool
-            self.grids = _check_stack(stacked, "grids" if grids is not None else "map_pool")
+            self.grids = check_grid_stack(stacked, "grids" if grids is not None else "map_pool")
             if grids is not None and len(self.grids) != self.n_envs:
                 raise ValueError(f"grids must hold n_envs = {self.n_envs} maps, got {len(grids)}")
             self.grid = None  # several maps: see grids and map_indices
