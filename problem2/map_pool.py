@@ -58,6 +58,10 @@ def validation_maps(size: int, grid_size: tuple[int, int] = (10, 10)) -> np.ndar
     return _pool(VALIDATION_FIRST_SEED, size, tuple(grid_size))
 
 
+@lru_cache(maxsize=8)
 def held_out_maps(grid_size: tuple[int, int] = (10, 10)) -> np.ndarray:
-    """The 40 held-out test maps (40, H, W), in the order of ``HELD_OUT_MAP_SEEDS``."""
-    return np.stack([generate_map(grid_size, seed) for seed in HELD_OUT_MAP_SEEDS])
+    """The 40 held-out test maps (40, H, W), in the order of ``HELD_OUT_MAP_SEEDS`` (read-only,
+    cached)."""
+    maps = np.stack([generate_map(tuple(grid_size), seed) for seed in HELD_OUT_MAP_SEEDS])
+    maps.flags.writeable = False
+    return maps

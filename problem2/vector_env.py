@@ -107,7 +107,7 @@ class VectorMultiAgentEnv:
             self.grids = check_grid_stack(stacked, "grids" if grids is not None else "map_pool")
             if grids is not None and len(self.grids) != self.n_envs:
                 raise ValueError(f"grids must hold n_envs = {self.n_envs} maps, got {len(grids)}")
-            self.grid = None  # several maps: see grids and map_indices
+            self.grid = self.grids[0] if len(self.grids) == 1 else None  # else: map_indices
         else:
             self.grid = generate_map(grid_size, seed) if grid is None else check_grid(grid)
             self.grid.flags.writeable = False
