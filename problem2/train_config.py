@@ -71,7 +71,7 @@ class TrainConfig:
     """final learning rate as a fraction of lr (0..1), reached linearly at the end of the run"""
     gamma: float = 0.99
     """discount factor, in [0, 1)"""
-    n_step: int = 1
+    n_step: int = 3
     """steps of reward in each TD target (1 or more): r_t + ... + gamma^(n-1) r_(t+n-1) +
     gamma^n max Q(s_(t+n)), fewer where the episode ends first (no bootstrap at a terminal)"""
     epsilon_start: float = 1.0

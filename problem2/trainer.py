@@ -225,26 +225,28 @@ class MultiAgentTrainer:
         """Push the joint transitions that this step of the N episodes completes (N of them
         with n_step 1; see :class:`replay_buffer.NStepWindow`); with each, the observations
         one step before its start (DIAL). ``next_obs`` is the true next observation also
-        where an episode was cut off (``truncated``)."""
+        where an episode was cut off (``truncated``). Into a buffer that was first filled by
+        hand (the ten fields only) it pushes this step's one-step transitions instead."""
         start = dict(
             state_A=rollout.obs[:, 0], state_B=rollout.obs[:, 1],
             action_A=actions[:, 0], action_B=actions[:, 1],
             comm_A=messages[:, 0], comm_B=messages[:, 1],
         )  # fmt: skip
-        stored = self.replay_buffer.field_names
-        by_hand = len(self.replay_buffer) > 0 and "discount" not in stored
-        if by_hand and self.cfg.n_step > 1:
-            raise ValueError("n_step > 1 needs a replay buffer filled by the trainer only")
-        if not by_hand:  # (a buffer first filled by hand holds the ten fields only)
-            start |= dict(
-                prev_state_A=rollout.prev_obs[:, 0],
-                prev_state_B=rollout.prev_obs[:, 1],
-                has_prev=rollout.has_prev,
-            )
+        if len(self.replay_buffer) and "discount" not in self.replay_buffer.field_names:
+            # A buffer first filled by hand holds the ten fields of one-step transitions.
+            fields = start | dict(
+                reward=rewards, next_state_A=next_obs[:, 0], next_state_B=next_obs[:, 1],
+                done=terminated,
+            )  # fmt: skip
+            self.replay_buffer.push_batch(**fields)
+            return
+        start |= dict(
+            prev_state_A=rollout.prev_obs[:, 0],
+            prev_state_B=rollout.prev_obs[:, 1],
+            has_prev=rollout.has_prev,
+        )
         finished = terminated | truncated
         fields = rollout.window.add(start, rewards, next_obs, rollout.obs, terminated, finished)
-        if by_hand:
-            fields = {name: fields[name] for name in stored}
         if fields:  # the environment checked the actions and clipped the messages
             self.replay_buffer.push_batch(validate=False, **fields)
 
