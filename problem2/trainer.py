@@ -29,8 +29,9 @@ import torch
 import torch.nn.functional as F
 from models import export_policy, observation_mask
 from multi_agent_env import NUM_ACTIONS, MultiAgentEnv, VectorMultiAgentEnv
+from n_step import NStepWindow
 from paired_networks import FlatAdam, PairedQNetworks
-from replay_buffer import NStepWindow, PrioritizedReplayBuffer, ReplayBuffer
+from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED, PolicyFn, evaluate_policy
 from td_update import FastTDGradient, TransitionBatch
 from train_config import TrainConfig
@@ -223,7 +224,7 @@ class MultiAgentTrainer:
         next_obs: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
     ) -> None:  # fmt: skip
         """Push the joint transitions that this step of the N episodes completes (N of them
-        with n_step 1; see :class:`replay_buffer.NStepWindow`); with each, the observations
+        with n_step 1; see :class:`n_step.NStepWindow`); with each, the observations
         one step before its start (DIAL). ``next_obs`` is the true next observation also
         where an episode was cut off (``truncated``). Into a buffer that was first filled by
         hand (the ten fields only) it pushes this step's one-step transitions instead."""

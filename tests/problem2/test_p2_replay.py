@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from n_step import NStepWindow
 from replay_buffer import (
     TRANSITION_FIELDS,
-    NStepWindow,
     PrioritizedReplayBuffer,
     ReplayBuffer,
     SumTree,
