@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from paired_networks import PairedQNetworks
@@ -51,26 +50,36 @@ class TransitionBatch:
             weights=torch.ones(batch_size),
         )
 
-    def buffer_views(self, stored_fields: tuple[str, ...]) -> dict[str, np.ndarray]:
-        """NumPy views of these tensors by replay-buffer field name, for the fields the
-        buffer stores (``ReplayBuffer.sample_batch(out=...)`` fills them in place)."""
-        views = {
-            "state_A": self.obs[0],
-            "state_B": self.obs[1],
-            "next_state_A": self.next_obs[0],
-            "next_state_B": self.next_obs[1],
-            "last_state_A": self.last_obs[0],
-            "last_state_B": self.last_obs[1],
-            "prev_state_A": self.prev_obs[0],
-            "prev_state_B": self.prev_obs[1],
-            "has_prev": self.has_prev,
-            "action_A": self.actions[0],
-            "action_B": self.actions[1],
-            "reward": self.reward,
-            "done": self.done,
-            "discount": self.discount,
-        }
-        return {name: view.numpy() for name, view in views.items() if name in stored_fields}
+    @classmethod
+    def of_rows(cls, rows: torch.Tensor, layout: dict[str, slice], obs_dim: int) -> TransitionBatch:
+        """A batch whose fields are views of ``rows`` (B, row width), packed replay rows
+        with the columns ``layout`` (``ReplayBuffer.sample_rows`` fills them in place).
+        Fields the rows lack stay zeros, except ``last_obs``, which is then ``obs`` (one-step
+        transitions). ``actions`` stays a copy (int64, to index with): see
+        :meth:`read_actions`."""
+        batch = cls.empty(rows.shape[0], obs_dim)
+
+        def pair(name_a: str) -> torch.Tensor:  # columns of X_A then X_B -> (2, B, D)
+            first = layout[name_a].start
+            return rows[:, first : first + 2 * obs_dim].view(-1, 2, obs_dim).transpose(0, 1)
+
+        pairs = {"obs": "state_A", "next_obs": "next_state_A", "prev_obs": "prev_state_A"}
+        for attribute, name in (pairs | {"last_obs": "last_state_A"}).items():
+            if name in layout:
+                setattr(batch, attribute, pair(name))
+        if "last_state_A" not in layout:
+            batch.last_obs = batch.obs
+        for name in ("has_prev", "reward", "done", "discount"):
+            if name in layout:
+                setattr(batch, name, rows[:, layout[name].start])
+        return batch
+
+    @staticmethod
+    def stored_actions(rows: torch.Tensor, layout: dict[str, slice]) -> torch.Tensor:
+        """The actions' columns of ``rows`` as a (2, B) float32 view (A's column then B's),
+        to copy into ``actions`` after each gather."""
+        first = layout["action_A"].start
+        return rows[:, first : first + 2].T
 
     def clone(self) -> TransitionBatch:
         return TransitionBatch(**{f.name: getattr(self, f.name).clone() for f in fields(self)})
@@ -120,6 +129,8 @@ class FastTDGradient:
         self.message = online.input_dim - 2  # input index of the received message
         self._views: tuple[int, int, int, LayerViews, LayerViews, LayerViews] | None = None
         self._buffers: dict[int, dict[str, torch.Tensor]] = {}
+        self._batch: TransitionBatch | None = None  # the batch of the views below
+        self._batch_views: tuple[torch.Tensor, ...] = ()
 
     def views(self) -> tuple[LayerViews, LayerViews, LayerViews]:
         """Views of the online and target weights and of the online gradient, made once
@@ -174,18 +185,28 @@ class FastTDGradient:
             self._buffers = {b: buf}
         return self._buffers[batch_size]
 
+    def batch_views(self, batch: TransitionBatch) -> tuple[torch.Tensor, ...]:
+        """Feature-major views (2, D, B) of the batch's observations (obs, next, previous,
+        last) and its actions as (2, 1, B); made once for a batch that is refilled in place."""
+        if batch is not self._batch:
+            states = (batch.obs, batch.next_obs, batch.prev_obs, batch.last_obs)
+            self._batch_views = (*(x.transpose(1, 2) for x in states), batch.actions.unsqueeze(1))
+            self._batch = batch
+        return self._batch_views
+
     @torch.no_grad()
     def __call__(self, batch: TransitionBatch) -> tuple[float, torch.Tensor, float]:
         online, target, grad = self.views()
         size = batch.obs.shape[1]
         buf = self.buffers(size)
+        obs_t, next_obs_t, prev_obs_t, last_obs_t, actions = self.batch_views(batch)
         # Masked inputs, feature-major (2, D, B); next and previous side by side (2, D, 2B).
-        x = torch.mul(batch.obs.transpose(1, 2), self.mask, out=buf["x"])
-        next_x = torch.mul(batch.next_obs.transpose(1, 2), self.mask, out=buf["next_x"])
+        x = torch.mul(obs_t, self.mask, out=buf["x"])
+        next_x = torch.mul(next_obs_t, self.mask, out=buf["next_x"])
         if self.dial:
-            torch.mul(batch.prev_obs.transpose(1, 2), self.mask, out=buf["prev_x"])
+            torch.mul(prev_obs_t, self.mask, out=buf["prev_x"])
             # Next message: the partner's target network on its observation before s'.
-            last_x = torch.mul(batch.last_obs.transpose(1, 2), self.mask, out=buf["last_x"])
+            last_x = torch.mul(last_obs_t, self.mask, out=buf["last_x"])
             target_hidden = target.hidden(last_x, buf["target_hidden"])
             next_logit = target.message(target_hidden, buf["next_logit"])  # (2, 1, B)
             torch.sigmoid(next_logit.flip(0).squeeze(1), out=buf["next_x_message"])
@@ -204,7 +225,9 @@ class FastTDGradient:
             sent = logit.sigmoid_()  # (2, 1, B), indexed by the sender
             has_prev = batch.has_prev  # (B,) 1.0 / 0.0
             x_message = buf["x_message"]
-            torch.where(has_prev > 0, sent.flip(0).squeeze(1), x_message, out=x_message)
+            # Where has_prev is 1 the recomputed message, else the stored one (lerp is exact
+            # at weights 0 and 1, and one operation instead of a comparison and a where).
+            torch.lerp(x_message, sent.flip(0).squeeze(1), has_prev, out=x_message)
         # TD target: the target network's value of the online argmax, no gradient.
         next_target_q = target.q(
             target.hidden(next_x, buf["next_target_hidden"]), buf["next_target_q"]
@@ -214,7 +237,6 @@ class FastTDGradient:
         # Forward on the current observation, Huber loss.
         hidden = online.hidden(x, buf["hidden"])  # (2, H, B)
         q = online.q(hidden, buf["q"])  # (2, A, B)
-        actions = batch.actions.unsqueeze(1)  # (2, 1, B)
         q_taken = q.gather(1, actions).squeeze(1)  # (2, B)
         delta = q_taken - y
         if self.weighted:

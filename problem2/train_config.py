@@ -71,7 +71,7 @@ class TrainConfig:
     """final learning rate as a fraction of lr (0..1), reached linearly at the end of the run"""
     gamma: float = 0.99
     """discount factor, in [0, 1)"""
-    n_step: int = 1
+    n_step: int = 3
     """steps of reward in each TD target (1 or more): r_t + ... + gamma^(n-1) r_(t+n-1) +
     gamma^n max Q(s_(t+n)), fewer where the episode ends first (no bootstrap at a terminal)"""
     epsilon_start: float = 1.0
@@ -127,8 +127,7 @@ class TrainConfig:
     """replace a batch with other settings in --output_dir (see the rule below)"""
     map_pool: int = 0
     """0: train on the --map_seed map; N > 0: on a pool of N generated maps (map_pool.py), a new
-    one drawn at each episode start, periodic validation on other generated maps (run it with
-    map_pool_study.py: train.py's final selection evaluation plays the --map_seed map)"""
+    one drawn at each episode start, evaluated on other generated maps (map_pool_study.py)"""
     validation_maps: int = 200
     """with --map_pool: generated validation maps of the periodic evaluations (1 or more)"""
     share_weights: bool = False

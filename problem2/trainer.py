@@ -30,8 +30,9 @@ import torch.nn.functional as F
 from map_pool import training_maps, validation_maps
 from models import export_policy, observation_mask
 from multi_agent_env import NUM_ACTIONS, MultiAgentEnv, VectorMultiAgentEnv
+from n_step import NStepWindow
 from paired_networks import FlatAdam, PairedQNetworks
-from replay_buffer import NStepWindow, PrioritizedReplayBuffer, ReplayBuffer
+from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED, PolicyFn, evaluate_policy
 from td_update import FastTDGradient, TransitionBatch
 from train_config import TrainConfig
@@ -148,7 +149,7 @@ class MultiAgentTrainer:
                 self.noise_rng, weighted=cfg.prioritized,
             )
         )  # fmt: skip
-        self._batches: dict[tuple, tuple[TransitionBatch, dict[str, np.ndarray]]] = {}
+        self._batches: dict[tuple, tuple[TransitionBatch, np.ndarray, torch.Tensor]] = {}
         self.epsilon = cfg.epsilon_start
         self.env_steps = self.episodes = self.updates = 0
         self.last_td_errors: torch.Tensor | None = None  # (2, B) of the last update
@@ -162,6 +163,7 @@ class MultiAgentTrainer:
         self.best_selection: dict[str, float] = {}
         self._best_state = {k: v.clone() for k, v in self.online.state_dict().items()}
         self._episode_rollout: Rollout | None = None  # for train_episode()
+        self._evaluation_envs: dict[int, VectorMultiAgentEnv] = {}  # by number of copies
 
     # ------------------------------------------------------------------ acting
     def make_vector_env(
@@ -236,37 +238,49 @@ class MultiAgentTrainer:
         next_obs: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
     ) -> None:  # fmt: skip
         """Push the joint transitions that this step of the N episodes completes (N of them
-        with n_step 1; see :class:`replay_buffer.NStepWindow`); with each, the observations
+        with n_step 1; see :class:`n_step.NStepWindow`); with each, the observations
         one step before its start (DIAL). ``next_obs`` is the true next observation also
-        where an episode was cut off (``truncated``)."""
+        where an episode was cut off (``truncated``). Into a buffer that was first filled by
+        hand (the ten fields only) it pushes this step's one-step transitions instead."""
         start = dict(
             state_A=rollout.obs[:, 0], state_B=rollout.obs[:, 1],
             action_A=actions[:, 0], action_B=actions[:, 1],
             comm_A=messages[:, 0], comm_B=messages[:, 1],
         )  # fmt: skip
-        if not len(self.replay_buffer) or "prev_state_A" in self.replay_buffer.field_names:
-            # (A buffer first filled by hand holds the ten fields only.)
-            start |= dict(
-                prev_state_A=rollout.prev_obs[:, 0],
-                prev_state_B=rollout.prev_obs[:, 1],
-                has_prev=rollout.has_prev,
-            )
+        if len(self.replay_buffer) and "discount" not in self.replay_buffer.field_names:
+            # A buffer first filled by hand holds the ten fields of one-step transitions.
+            fields = start | dict(
+                reward=rewards, next_state_A=next_obs[:, 0], next_state_B=next_obs[:, 1],
+                done=terminated,
+            )  # fmt: skip
+            self.replay_buffer.push_batch(**fields)
+            return
+        start |= dict(
+            prev_state_A=rollout.prev_obs[:, 0],
+            prev_state_B=rollout.prev_obs[:, 1],
+            has_prev=rollout.has_prev,
+        )
         finished = terminated | truncated
         fields = rollout.window.add(start, rewards, next_obs, rollout.obs, terminated, finished)
-        if fields:
-            self.replay_buffer.push_batch(**fields)
+        if fields:  # the environment checked the actions and clipped the messages
+            self.replay_buffer.push_batch(validate=False, **fields)
 
     def sample(self, batch_size: int) -> TransitionBatch:
-        """A batch from the replay buffer, in tensors reused from update to update."""
-        stored = self.replay_buffer.field_names
-        if (batch_size, stored) not in self._batches:
-            batch = TransitionBatch.empty(batch_size, self.obs_dim)
-            self._batches = {(batch_size, stored): (batch, batch.buffer_views(stored))}
-        batch, views = self._batches[(batch_size, stored)]
-        _, weights, self.last_indices = self.replay_buffer.sample_batch(batch_size, out=views)
-        if "discount" not in stored:  # one-step transitions: d = γ (1 − done), s' after s
+        """A batch from the replay buffer: its packed rows, gathered into one tensor that
+        is reused from update to update and that the batch's fields view."""
+        layout = self.replay_buffer.layout
+        width = max(columns.stop for columns in layout.values())
+        key = (batch_size, tuple(layout), width)
+        if key not in self._batches:
+            rows = torch.zeros(batch_size, width)
+            batch = TransitionBatch.of_rows(rows, layout, self.obs_dim)
+            actions = TransitionBatch.stored_actions(rows, layout)
+            self._batches = {key: (batch, rows.numpy(), actions)}
+        batch, rows, actions = self._batches[key]
+        weights, self.last_indices = self.replay_buffer.sample_rows(batch_size, rows)
+        batch.actions.copy_(actions)
+        if "discount" not in layout:  # transitions pushed by hand: d = γ (1 − done)
             torch.mul(batch.done, -self.cfg.gamma, out=batch.discount).add_(self.cfg.gamma)
-            batch.last_obs.copy_(batch.obs)
         if self.cfg.prioritized:
             batch.weights.copy_(torch.from_numpy(weights))
         return batch
@@ -338,8 +352,7 @@ class MultiAgentTrainer:
         if self.cfg.share_weights:  # one shared parameter: the sum of both agents' gradients
             for gradient in self.online.gradients():  # each (2, ...), agent axis first
                 gradient.copy_(gradient.sum(dim=0, keepdim=True).expand_as(gradient))
-        self.online.clip_grad_norm_(self.cfg.max_grad_norm)
-        self.optimizer.step()
+        self.optimizer.step(grad_divisor=self.online.clip_divisor(self.cfg.max_grad_norm))
         self.updates += 1
         self._losses.append(loss)
         self._mean_qs.append(mean_q)
@@ -468,9 +481,19 @@ class MultiAgentTrainer:
         """(mean reward, success rate) over fixed episodes (the test episodes by default),
         under the reward the trainer learns from (unshaped); on the validation maps when
         training on a map pool."""
-        env = self.make_vector_env(min(num_episodes, 500), None, validation=True)
-        summary = evaluate_policy(env, self.policy(epsilon), num_episodes, seed=seed)
+        summary = self.evaluation_summary(num_episodes, epsilon, seed)
         return summary["mean_return"], summary["success_rate"]
+
+    def evaluation_summary(
+        self, num_episodes: int, epsilon: float, seed: int
+    ) -> dict[str, float | int | None]:
+        """:func:`rollout.evaluate_policy` of the current policy on fixed episodes drawn
+        from ``seed``, in environments made once per run (each evaluation reseeds them)."""
+        n_envs = min(num_episodes, 500)
+        if n_envs not in self._evaluation_envs:
+            self._evaluation_envs[n_envs] = self.make_vector_env(n_envs, None, validation=True)
+        env = self._evaluation_envs[n_envs]
+        return evaluate_policy(env, self.policy(epsilon), num_episodes, seed=seed)
 
     def evaluate_and_log(self, progress: Callable[[dict[str, Any]], None] | None) -> None:
         """Evaluate on the validation episodes, remember the best weights ("selection"),

@@ -167,7 +167,7 @@ def test_shared_gradient_is_the_sum_of_both_agents(tmp_path: Path) -> None:
     expected = [g.sum(dim=0) for g in trainer.online.gradients()]
     trainer.sample = lambda batch_size: batch  # the same batch for update_networks
     stepped = []
-    trainer.optimizer.step = lambda: stepped.append(trainer.online.flat.grad.clone())
+    trainer.optimizer.step = lambda **_: stepped.append(trainer.online.flat.grad.clone())
     trainer.update_networks(32)
     got = trainer.online._views_of(stepped[0])
     for mine, want in zip(got, expected, strict=True):

@@ -148,6 +148,7 @@ def test_starter_flags_and_defaults() -> None:
     [
         (["--mode", "telepathy"], "mode must be all or a comma-separated list"),
         (["--gamma", "1.0"], "gamma"),
+        (["--n_step", "0"], "n_step"),
         (["--comm_learning", "maybe"], "comm_learning"),
         (["--epsilon_end", "0.5", "--epsilon_start", "0.1"], "epsilon_end"),
     ],
