@@ -5,10 +5,10 @@ process per repeat (checkouts are interleaved so that a busy machine slows all a
 
 * ``update independent`` / ``update full``: ms per ``update_networks(256)`` on a buffer
   filled by 6 400 env steps of the default map (``full`` learns its messages with DIAL);
-* ``training``: env-steps/s of ``train()`` at the default settings (64 envs, 2 updates per
-  vector step, 5 000 warm-up steps) for 40 000 env steps, evaluation switched off;
+* ``training``: env-steps/s of ``train()`` at the checkout's default settings for 40 000
+  env steps, evaluation switched off;
 * with ``--end_to_end``: wall seconds of ``python train.py --mode full --num_seeds 1
-  --workers 1`` (one default run, 200 k env steps, with its periodic evaluation and export).
+  --workers 1`` (one default run of the checkout, with its periodic evaluation and export).
 
 It prints the median over the repeats and, for every further checkout, its ratio to the
 first. Compare against an older commit side by side, e.g.:

@@ -37,9 +37,8 @@ from _atomic import (
     write_json_atomic,
 )
 from batch_workers import ProgressLine, run_jobs
-from matplotlib.figure import Figure
-from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv, generate_map, save_map
-from rollout import EVAL_EPSILON, VALIDATION_SEED, run_episodes, summarize
+from multi_agent_env import MultiAgentEnv, generate_map, save_map
+from rollout import EVAL_EPSILON, VALIDATION_SEED
 from train_config import DEFAULT_OUTPUT_DIR, SettingError, TrainConfig
 from trainer import MultiAgentTrainer
 
@@ -172,51 +171,22 @@ def train_one(
             trainer.save_models()
 
     trainer.train(report)
-    selection = selection_evaluation(trainer, cfg, env)
+    selection = selection_evaluation(trainer, cfg)
     write_json_atomic(logs_dir / f"{name}_selection.json", {"mode": mode, "seed": seed} | selection)
     return {"mode": mode, "seed": seed, **selection, "seconds": time.perf_counter() - start}
 
 
-def selection_evaluation(
-    trainer: MultiAgentTrainer, cfg: TrainConfig, env: MultiAgentEnv
-) -> dict[str, Any]:
-    """Greedy and ε = 0.05 results on ``cfg.final_eval_episodes`` validation episodes, and
-    the score that picks the best seed (by ``cfg.select_by``)."""
+def selection_evaluation(trainer: MultiAgentTrainer, cfg: TrainConfig) -> dict[str, Any]:
+    """Greedy and ε = 0.05 results on ``cfg.final_eval_episodes`` validation episodes
+    (success rate, mean steps to success, mean return), and the score that picks the best
+    seed (by ``cfg.select_by``)."""
     result: dict[str, Any] = {"select_by": cfg.select_by, "validation_seed": VALIDATION_SEED}
     for label, epsilon in (("greedy", 0.0), ("eps", EVAL_EPSILON)):
-        eval_env = VectorMultiAgentEnv(
-            min(cfg.final_eval_episodes, 500),
-            grid=env.grid,
-            obs_window=env.obs_window,
-            max_steps=env.max_steps,
-            reward_mode=cfg.reward_mode,
-        )
-        policy = trainer.policy(epsilon)
-        episodes = run_episodes(
-            eval_env, policy, cfg.final_eval_episodes, seed=VALIDATION_SEED, record=True
-        )
-        result[label] = {
-            "epsilon": epsilon,
-            **episode_statistics(episodes, eval_env.target_position),
-        }
+        summary = trainer.evaluation_summary(cfg.final_eval_episodes, epsilon, VALIDATION_SEED)
+        result[label] = {"epsilon": epsilon, **summary}
     metric = "success_rate" if cfg.select_by == "success" else "mean_return"
     result["score"] = (result["greedy"][metric] + result["eps"][metric]) / 2
     return result
-
-
-def episode_statistics(episodes: Any, target: tuple[int, int]) -> dict[str, Any]:
-    """Success, steps and return of recorded episodes, plus the parking statistics: the share
-    of steps with exactly one agent on the target, and the share of episodes in which one
-    agent reached the target and the other never did."""
-    summary = summarize(episodes)
-    positions = episodes.trajectories["positions"][:, 1:]  # (E, T, 2, 2) after each step
-    on_target = np.all(positions == np.array(target), axis=-1)  # (E, T, 2)
-    in_episode = np.arange(positions.shape[1])[None, :] < episodes.lengths[:, None]  # (E, T)
-    exactly_one = (on_target.sum(axis=-1) == 1) & in_episode
-    reached = (on_target & in_episode[..., None]).any(axis=1)  # (E, 2)
-    summary["share_steps_one_on_target"] = float(exactly_one.sum() / in_episode.sum())
-    summary["share_episodes_one_never_arrives"] = float(np.mean(reached.sum(axis=1) == 1))
-    return summary
 
 
 # ------------------------------------------------------------------------------ the batch
@@ -350,6 +320,8 @@ def keep_interrupted(staging: Path, root: Path) -> None:
 # ------------------------------------------------------------------------------- figures
 def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], title: str) -> Path:
     """Evaluation return and success rate against env steps, mean over seeds, min–max band."""
+    from matplotlib.figure import Figure  # here: a worker process never needs matplotlib
+
     fig = Figure(figsize=(12, 4.4), layout="constrained")
     axes = fig.subplots(1, 2)
     panels = (("eval_return_eps", "average episode reward"), ("eval_success_eps", "success rate"))

@@ -81,6 +81,46 @@ def check_grid(grid: np.ndarray | list) -> np.ndarray:
     return array.astype(np.int64)
 
 
+def check_grid_stack(maps: np.ndarray, name: str = "maps") -> np.ndarray:
+    """``maps`` (M, H, W) as a read-only int64 stack, or ValueError naming the first bad
+    map: what :func:`check_grid` checks, vectorised over the stack (connectivity
+    by flood-filling every map at once from its target)."""
+    maps = np.asarray(maps)
+    if maps.ndim != 3 or len(maps) == 0 or maps.dtype.kind not in "iu":
+        raise ValueError(
+            f"{name} must be a non-empty integer stack of maps (M, H, W), got "
+            f"{maps.dtype} {maps.shape}"
+        )
+    reached = maps == TARGET
+    open_cells = maps != OBSTACLE
+    while True:  # grow the set reachable from the target by one move per pass
+        grown = reached.copy()
+        grown[:, 1:] |= reached[:, :-1]
+        grown[:, :-1] |= reached[:, 1:]
+        grown[:, :, 1:] |= reached[:, :, :-1]
+        grown[:, :, :-1] |= reached[:, :, 1:]
+        grown &= open_cells
+        if np.array_equal(grown, reached):
+            break
+        reached = grown
+    well_formed = (
+        ((maps == FREE) | (maps == OBSTACLE) | (maps == TARGET)).all(axis=(1, 2))
+        & ((maps == TARGET).sum(axis=(1, 2)) == 1)
+        & ((maps == FREE).sum(axis=(1, 2)) >= 2)
+        & (reached | ~open_cells).all(axis=(1, 2))
+    )
+    if not well_formed.all():
+        index = int(np.argmin(well_formed))
+        try:
+            check_grid(maps[index])  # names the problem
+        except ValueError as error:
+            raise ValueError(f"{name}[{index}]: {error}") from error
+    check_grid(maps[0])  # the size rules
+    stack = maps.astype(np.int64)
+    stack.flags.writeable = False
+    return stack
+
+
 def generate_map(grid_size: tuple[int, int] = (10, 10), seed: int | None = None) -> np.ndarray:
     """Draw a map (H, W) int64 with ``np.random.default_rng(seed)``: 3–6 obstacles off the
     four corners, then one target on a free cell, redrawn until every free cell reaches the

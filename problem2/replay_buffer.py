@@ -1,11 +1,14 @@
 """Experience replay for the two agents' joint transitions.
 
 ``ReplayBuffer`` samples uniformly; ``PrioritizedReplayBuffer`` samples in proportion to
-priority^alpha from a sum-tree. Both store each field in one preallocated NumPy array,
-created at the first push with the per-transition shape it brings (so 10- and 11-dim
-observations both work), written as a ring. Besides the ten required fields a buffer may
+priority^alpha from a sum-tree. Both store a joint transition as one float32 row of a
+preallocated matrix, created at the first push with the per-transition shapes it brings
+(so 10- and 11-dim observations both work) and written as a ring; each field is a block
+of columns (:attr:`ReplayBuffer.layout`), so that a learner can draw a whole batch with one
+gather (:meth:`ReplayBuffer.sample_rows`). Besides the ten required fields a buffer may
 store further named arrays (e.g. the partner's previous observation, for DIAL): whatever
-extra keywords the first push brings, every later push must bring too.
+extra keywords the first push brings, every later push must bring too. Every field is
+stored as float32 (exact for the actions) and read back in its dtype.
 """
 
 from __future__ import annotations
@@ -20,6 +23,11 @@ TRANSITION_FIELDS = (
     "reward", "next_state_A", "next_state_B", "done",
 )  # fmt: skip
 STATE_FIELDS = ("state_A", "state_B", "next_state_A", "next_state_B")
+# Column order of a row: these observation pairs side by side (A then B), then the rest.
+PAIRED_FIELDS = (
+    "state_A", "state_B", "next_state_A", "next_state_B",
+    "prev_state_A", "prev_state_B", "last_state_A", "last_state_B",
+)  # fmt: skip
 _INTEGER_FIELDS = ("action_A", "action_B")  # stored as int64; the other required: float32
 
 
@@ -89,7 +97,10 @@ class ReplayBuffer:
     def __init__(self, capacity: int = 10000, seed: int | None = None) -> None:
         self.capacity = _positive_int(capacity, "capacity")
         self._rng = np.random.default_rng(seed)
-        self._storage: dict[str, np.ndarray] = {}
+        self._rows = np.zeros((0, 0), np.float32)  # (capacity, row width) after the first push
+        self._storage: dict[str, np.ndarray] = {}  # each field's columns, views of _rows
+        self._dtypes: dict[str, np.dtype] = {}
+        self.layout: dict[str, slice] = {}  # each field's columns in a row
         self._size = 0
         self._next_slot = 0
 
@@ -112,10 +123,12 @@ class ReplayBuffer:
         self.push_batch(**{name: _as_array(name, value)[None] for name, value in fields.items()})
     # fmt: on
 
-    def push_batch(self, **arrays: np.ndarray) -> np.ndarray:
+    def push_batch(self, *, validate: bool = True, **arrays: np.ndarray) -> np.ndarray:
         """Store B transitions: the ten required fields and any extras as keywords, each
         with leading dimension B (states (B, obs_dim), actions (B,), ...). If B exceeds the
-        capacity only the last ``capacity`` are kept. Returns the slots written (B',) int64."""
+        capacity only the last ``capacity`` are kept. Returns the slots written (B',) int64.
+        ``validate=False`` skips :func:`check_transitions` (for a trainer that pushes what
+        the environment returned, already checked there)."""
         missing = [name for name in TRANSITION_FIELDS if name not in arrays]
         if missing:
             raise ValueError(f"push_batch is missing required fields {missing}")
@@ -126,28 +139,44 @@ class ReplayBuffer:
                 "every field needs the same non-zero leading (batch) dimension; "
                 f"got shapes { {name: a.shape for name, a in arrays.items()} }"
             )
-        check_transitions(arrays)
+        if validate:
+            check_transitions(arrays)
         if not self._storage:
             self._allocate(arrays)
         self._check_fields(arrays)
         batch_size = min(lengths.pop(), self.capacity)
         slots = (self._next_slot + np.arange(batch_size)) % self.capacity
+        end = self._next_slot + batch_size
+        rows = slice(self._next_slot, end) if end <= self.capacity else slots  # slices: faster
         for name, value in arrays.items():
-            self._storage[name][slots] = value[-batch_size:]
+            self._storage[name][rows] = value[-batch_size:]
         self._next_slot = int(slots[-1] + 1) % self.capacity
         self._size = min(self._size + batch_size, self.capacity)
         return slots
 
     def _allocate(self, arrays: dict[str, np.ndarray]) -> None:
         extras = sorted(set(arrays) - set(TRANSITION_FIELDS))
-        for name in (*TRANSITION_FIELDS, *extras):
+        names = (*TRANSITION_FIELDS, *extras)
+        columns = [name for name in PAIRED_FIELDS if name in arrays]
+        columns += [name for name in names if name not in PAIRED_FIELDS]
+        shapes = {name: arrays[name].shape[1:] for name in names}
+        width = 0
+        for name in columns:
+            size = int(np.prod(shapes[name], dtype=np.int64))
+            self.layout[name] = slice(width, width + size)
+            width += size
+        self._rows = np.zeros((self.capacity, width), np.float32)
+        for name in names:  # the field order of get() and field_names
             if name in _INTEGER_FIELDS:
-                dtype = np.int64
+                self._dtypes[name] = np.dtype(np.int64)
             elif name in TRANSITION_FIELDS:
-                dtype = np.float32
+                self._dtypes[name] = np.dtype(np.float32)
             else:
-                dtype = arrays[name].dtype
-            self._storage[name] = np.zeros((self.capacity, *arrays[name].shape[1:]), dtype)
+                self._dtypes[name] = arrays[name].dtype
+            columns_of_name = self._rows[:, self.layout[name]]  # a view: writes reach the rows
+            self._storage[name] = np.reshape(
+                columns_of_name, (self.capacity, *shapes[name]), copy=False
+            )
 
     def _check_fields(self, arrays: dict[str, np.ndarray]) -> None:
         if set(arrays) != set(self._storage):
@@ -175,7 +204,22 @@ class ReplayBuffer:
 
     def get(self, indices: np.ndarray) -> dict[str, np.ndarray]:
         """Every field (required and extras) at slots ``indices`` (B,), as copies."""
-        return {name: values[indices] for name, values in self._storage.items()}
+        return {
+            name: values[indices].astype(self._dtypes[name], copy=False)
+            for name, values in self._storage.items()
+        }
+
+    def _weights(self, indices: np.ndarray) -> np.ndarray:
+        """Importance weights (B,) float32 of a drawn sample: all 1 for uniform replay."""
+        return np.ones(len(indices), dtype=np.float32)
+
+    def sample_rows(self, batch_size: int, out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Draw ``batch_size`` slots as :meth:`sample_batch` does and copy their whole rows
+        into ``out`` (batch_size, row width) float32 (one gather; :attr:`layout` gives each
+        field's columns). Returns (importance weights (B,) float32, slots (B,))."""
+        indices = self._draw_indices(self._check_batch_size(batch_size))
+        np.take(self._rows, indices, axis=0, out=out)
+        return self._weights(indices), indices
 
     def sample_batch(
         self, batch_size: int, out: dict[str, np.ndarray] | None = None
@@ -184,16 +228,16 @@ class ReplayBuffer:
         slots (B,)): one call that serves both buffer types.
 
         ``out``: optional arrays to fill in place instead, by field name (any subset of
-        :attr:`field_names`, each (B, ...) of the stored dtype); they are returned as the
-        batch. Filling preallocated arrays saves allocating ten new ones per update."""
+        :attr:`field_names`, each (B, ...) of the field's dtype); they are returned as the
+        batch."""
         indices = self._draw_indices(self._check_batch_size(batch_size))
         if out is None:
             batch = self.get(indices)
         else:
             for name, array in out.items():
-                np.take(self._storage[name], indices, axis=0, out=array)
+                array[...] = self._storage[name][indices]
             batch = out
-        return batch, np.ones(len(indices), dtype=np.float32), indices
+        return batch, self._weights(indices), indices
 
     def sample(self, batch_size: int) -> tuple[np.ndarray, ...]:
         """Uniform sample with replacement: the ten required arrays in interface order,
@@ -276,8 +320,8 @@ class PrioritizedReplayBuffer(ReplayBuffer):
         progress = min(1.0, self._samples_drawn / self.beta_steps)
         return self.beta_start + (1.0 - self.beta_start) * progress
 
-    def push_batch(self, **arrays: np.ndarray) -> np.ndarray:
-        slots = super().push_batch(**arrays)
+    def push_batch(self, *, validate: bool = True, **arrays: np.ndarray) -> np.ndarray:
+        slots = super().push_batch(validate=validate, **arrays)
         self._tree.update(slots, self._max_priority**self.alpha)
         return slots
 
@@ -287,14 +331,11 @@ class PrioritizedReplayBuffer(ReplayBuffer):
         # Rounding can carry a search just past the last stored slot (priority 0).
         return np.minimum(self._tree.find(prefix_sums), self._size - 1)
 
-    def sample_batch(
-        self, batch_size: int, out: dict[str, np.ndarray] | None = None
-    ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
-        batch, _, indices = super().sample_batch(batch_size, out)
+    def _weights(self, indices: np.ndarray) -> np.ndarray:
         probabilities = self._tree.values(indices) / self._tree.total
         weights = (self._size * probabilities) ** -self.beta
         self._samples_drawn += 1
-        return batch, (weights / weights.max()).astype(np.float32), indices
+        return (weights / weights.max()).astype(np.float32)
 
     def sample(self, batch_size: int) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray]:
         """(the ten required arrays as in ReplayBuffer.sample, weights (B,) float32,

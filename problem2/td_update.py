@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from paired_networks import PairedQNetworks
@@ -23,12 +22,14 @@ class TransitionBatch:
     """B joint transitions, agent axis first (A, then B). Filled in place per update."""
 
     obs: torch.Tensor  # (2, B, D) observations
-    next_obs: torch.Tensor  # (2, B, D) next observations
+    next_obs: torch.Tensor  # (2, B, D) next observations, the TD target bootstraps from
+    last_obs: torch.Tensor  # (2, B, D) observations one step before next_obs (= obs if n = 1)
     prev_obs: torch.Tensor  # (2, B, D) each agent's observation one step earlier (DIAL)
     has_prev: torch.Tensor  # (B,) 1.0 where prev_obs is stored, else 0.0
     actions: torch.Tensor  # (2, B) int64
     reward: torch.Tensor  # (B,) the team reward
     done: torch.Tensor  # (B,) 1.0 where both agents reached the target (terminal)
+    discount: torch.Tensor  # (B,) γ^k of the k-step return, 0 where terminal: γ (1 − done) if k = 1
     weights: torch.Tensor  # (B,) importance weights (ones without prioritised replay)
 
     @classmethod
@@ -39,31 +40,46 @@ class TransitionBatch:
         return cls(
             obs=states(),
             next_obs=states(),
+            last_obs=states(),
             prev_obs=states(),
             has_prev=torch.zeros(batch_size),
             actions=torch.zeros(2, batch_size, dtype=torch.int64),
             reward=torch.zeros(batch_size),
             done=torch.zeros(batch_size),
+            discount=torch.zeros(batch_size),
             weights=torch.ones(batch_size),
         )
 
-    def buffer_views(self, stored_fields: tuple[str, ...]) -> dict[str, np.ndarray]:
-        """NumPy views of these tensors by replay-buffer field name, for the fields the
-        buffer stores (``ReplayBuffer.sample_batch(out=...)`` fills them in place)."""
-        views = {
-            "state_A": self.obs[0],
-            "state_B": self.obs[1],
-            "next_state_A": self.next_obs[0],
-            "next_state_B": self.next_obs[1],
-            "prev_state_A": self.prev_obs[0],
-            "prev_state_B": self.prev_obs[1],
-            "has_prev": self.has_prev,
-            "action_A": self.actions[0],
-            "action_B": self.actions[1],
-            "reward": self.reward,
-            "done": self.done,
-        }
-        return {name: view.numpy() for name, view in views.items() if name in stored_fields}
+    @classmethod
+    def of_rows(cls, rows: torch.Tensor, layout: dict[str, slice], obs_dim: int) -> TransitionBatch:
+        """A batch whose fields are views of ``rows`` (B, row width), packed replay rows
+        with the columns ``layout`` (``ReplayBuffer.sample_rows`` fills them in place).
+        Fields the rows lack stay zeros, except ``last_obs``, which is then ``obs`` (one-step
+        transitions). ``actions`` stays a copy (int64, to index with): see
+        :meth:`read_actions`."""
+        batch = cls.empty(rows.shape[0], obs_dim)
+
+        def pair(name_a: str) -> torch.Tensor:  # columns of X_A then X_B -> (2, B, D)
+            first = layout[name_a].start
+            return rows[:, first : first + 2 * obs_dim].view(-1, 2, obs_dim).transpose(0, 1)
+
+        pairs = {"obs": "state_A", "next_obs": "next_state_A", "prev_obs": "prev_state_A"}
+        for attribute, name in (pairs | {"last_obs": "last_state_A"}).items():
+            if name in layout:
+                setattr(batch, attribute, pair(name))
+        if "last_state_A" not in layout:
+            batch.last_obs = batch.obs
+        for name in ("has_prev", "reward", "done", "discount"):
+            if name in layout:
+                setattr(batch, name, rows[:, layout[name].start])
+        return batch
+
+    @staticmethod
+    def stored_actions(rows: torch.Tensor, layout: dict[str, slice]) -> torch.Tensor:
+        """The actions' columns of ``rows`` as a (2, B) float32 view (A's column then B's),
+        to copy into ``actions`` after each gather."""
+        first = layout["action_A"].start
+        return rows[:, first : first + 2].T
 
     def clone(self) -> TransitionBatch:
         return TransitionBatch(**{f.name: getattr(self, f.name).clone() for f in fields(self)})
@@ -76,6 +92,8 @@ class FastTDGradient:
     row), masked inputs x, batch of B with importance weights w:
 
         h = relu(W1 x + b1),  q = W2[:A] h + b2[:A],  δ = q[a] − y,
+        y = R + d · Q_target(s', argmax_a Q_online(s', a)),  R, d: the k-step reward and
+        discount of the batch (k = 1: R = r, d = γ (1 − done)),
         L = Σ_i (1/B) Σ_b w_b huber(δ_ib),  ∂L/∂q[a] = clamp(δ, −1, 1) · w / B.
 
     Backward: the head gradient g (K, B) is zero except ∂L/∂q[a] in the taken action's
@@ -85,9 +103,10 @@ class FastTDGradient:
     partner's message logit z on its previous observation, so ∂L/∂s = W1[:, m]ᵀ g_h and
     ∂L/∂z = ∂L/∂s · s(1 − s) (zero where no previous observation is stored); that flows
     back through the sender's message row and hidden layer exactly as above.
-    The TD target y (Double DQN, next message from the partner's target network) carries
-    no gradient. Inputs and activations are held feature-major, (2, features, B): the
-    small matrix products run several times faster that way on a CPU.
+    The TD target y (Double DQN; the message in s' from the partner's target network on
+    its observation one step before s') carries no gradient. Inputs and activations are
+    held feature-major, (2, features, B): the small matrix products run several times
+    faster that way on a CPU.
     Writes ``online.flat.grad`` and returns (loss, δ (2, B), mean Q(s, a)).
     """
 
@@ -96,7 +115,6 @@ class FastTDGradient:
         online: PairedQNetworks,
         target: PairedQNetworks,
         mask: torch.Tensor,
-        gamma: float,
         dial: bool,
         comm_noise: float,
         noise_rng: torch.Generator,
@@ -105,12 +123,14 @@ class FastTDGradient:
         if online.dueling:
             raise ValueError("the hand-written gradient covers the plain network only")
         self.online, self.target, self.mask = online, target, mask.view(-1, 1)
-        self.gamma, self.dial, self.comm_noise, self.noise_rng = gamma, dial, comm_noise, noise_rng
+        self.dial, self.comm_noise, self.noise_rng = dial, comm_noise, noise_rng
         self.weighted = weighted  # importance weights other than 1 (prioritised replay)
         self.num_actions = online.num_actions
         self.message = online.input_dim - 2  # input index of the received message
         self._views: tuple[int, int, int, LayerViews, LayerViews, LayerViews] | None = None
         self._buffers: dict[int, dict[str, torch.Tensor]] = {}
+        self._batch: TransitionBatch | None = None  # the batch of the views below
+        self._batch_views: tuple[torch.Tensor, ...] = ()
 
     def views(self) -> tuple[LayerViews, LayerViews, LayerViews]:
         """Views of the online and target weights and of the online gradient, made once
@@ -138,6 +158,7 @@ class FastTDGradient:
             both = 2 * b if self.dial else b  # next (and previous) observations
             shapes = dict(
                 x=(online.input_dim, b), next_prev_x=(online.input_dim, both),
+                last_x=(online.input_dim, b),
                 target_hidden=(online.hidden_dim, b), next_logit=(1, b),
                 next_prev_hidden=(online.hidden_dim, both), next_prev_heads=(online.head_dim, both),
                 next_target_hidden=(online.hidden_dim, b), next_target_q=(self.num_actions, b),
@@ -164,18 +185,29 @@ class FastTDGradient:
             self._buffers = {b: buf}
         return self._buffers[batch_size]
 
+    def batch_views(self, batch: TransitionBatch) -> tuple[torch.Tensor, ...]:
+        """Feature-major views (2, D, B) of the batch's observations (obs, next, previous,
+        last) and its actions as (2, 1, B); made once for a batch that is refilled in place."""
+        if batch is not self._batch:
+            states = (batch.obs, batch.next_obs, batch.prev_obs, batch.last_obs)
+            self._batch_views = (*(x.transpose(1, 2) for x in states), batch.actions.unsqueeze(1))
+            self._batch = batch
+        return self._batch_views
+
     @torch.no_grad()
     def __call__(self, batch: TransitionBatch) -> tuple[float, torch.Tensor, float]:
         online, target, grad = self.views()
         size = batch.obs.shape[1]
         buf = self.buffers(size)
+        obs_t, next_obs_t, prev_obs_t, last_obs_t, actions = self.batch_views(batch)
         # Masked inputs, feature-major (2, D, B); next and previous side by side (2, D, 2B).
-        x = torch.mul(batch.obs.transpose(1, 2), self.mask, out=buf["x"])
-        next_x = torch.mul(batch.next_obs.transpose(1, 2), self.mask, out=buf["next_x"])
+        x = torch.mul(obs_t, self.mask, out=buf["x"])
+        next_x = torch.mul(next_obs_t, self.mask, out=buf["next_x"])
         if self.dial:
-            torch.mul(batch.prev_obs.transpose(1, 2), self.mask, out=buf["prev_x"])
-            # Next message: the partner's target network on the stored observation.
-            target_hidden = target.hidden(x, buf["target_hidden"])
+            torch.mul(prev_obs_t, self.mask, out=buf["prev_x"])
+            # Next message: the partner's target network on its observation before s'.
+            last_x = torch.mul(last_obs_t, self.mask, out=buf["last_x"])
+            target_hidden = target.hidden(last_x, buf["target_hidden"])
             next_logit = target.message(target_hidden, buf["next_logit"])  # (2, 1, B)
             torch.sigmoid(next_logit.flip(0).squeeze(1), out=buf["next_x_message"])
         # One online pass: Q on the next observations (for the Double DQN argmax) and, with
@@ -193,18 +225,18 @@ class FastTDGradient:
             sent = logit.sigmoid_()  # (2, 1, B), indexed by the sender
             has_prev = batch.has_prev  # (B,) 1.0 / 0.0
             x_message = buf["x_message"]
-            torch.where(has_prev > 0, sent.flip(0).squeeze(1), x_message, out=x_message)
+            # Where has_prev is 1 the recomputed message, else the stored one (lerp is exact
+            # at weights 0 and 1, and one operation instead of a comparison and a where).
+            torch.lerp(x_message, sent.flip(0).squeeze(1), has_prev, out=x_message)
         # TD target: the target network's value of the online argmax, no gradient.
         next_target_q = target.q(
             target.hidden(next_x, buf["next_target_hidden"]), buf["next_target_q"]
         )
         next_value = next_target_q.gather(1, best_next).squeeze(1)  # (2, B)
-        y = torch.add(batch.reward, next_value, alpha=self.gamma)  # r + γ (1 - done) Q'
-        y.addcmul_(batch.done, next_value, value=-self.gamma)
+        y = torch.addcmul(batch.reward, batch.discount, next_value)  # R + d Q'
         # Forward on the current observation, Huber loss.
         hidden = online.hidden(x, buf["hidden"])  # (2, H, B)
         q = online.q(hidden, buf["q"])  # (2, A, B)
-        actions = batch.actions.unsqueeze(1)  # (2, 1, B)
         q_taken = q.gather(1, actions).squeeze(1)  # (2, B)
         delta = q_taken - y
         if self.weighted:

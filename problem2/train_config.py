@@ -71,6 +71,9 @@ class TrainConfig:
     """final learning rate as a fraction of lr (0..1), reached linearly at the end of the run"""
     gamma: float = 0.99
     """discount factor, in [0, 1)"""
+    n_step: int = 3
+    """steps of reward in each TD target (1 or more): r_t + ... + gamma^(n-1) r_(t+n-1) +
+    gamma^n max Q(s_(t+n)), fewer where the episode ends first (no bootstrap at a terminal)"""
     epsilon_start: float = 1.0
     """initial exploration rate, in [0, 1]"""
     epsilon_end: float = 0.05
@@ -122,6 +125,19 @@ class TrainConfig:
     """parallel training processes (default: the available cores; at most one per run)"""
     overwrite: bool = False
     """replace a batch with other settings in --output_dir (see the rule below)"""
+    map_pool: int = 0
+    """0: train on the --map_seed map; N > 0: on a pool of N generated maps (map_pool.py), a new
+    one drawn at each episode start, evaluated on other generated maps (map_pool_study.py)"""
+    validation_maps: int = 200
+    """with --map_pool: generated validation maps of the periodic evaluations (1 or more)"""
+    share_weights: bool = False
+    """parameter sharing: both agents use one set of weights (same start, summed gradient),
+    a departure from the assignment's independent learners"""
+    coverage_bonus: float = 0.0
+    """reward shaping for learning only (>= 0): added per grid cell that enters either
+    agent's 3x3 view for the first time in the episode"""
+    on_target_bonus: float = 0.0
+    """reward shaping for learning only (>= 0): added per agent standing on the target"""
 
     def __post_init__(self) -> None:
         # --grid_size 10 and --grid_size 10 10 (the skeleton's list) mean the same grid.
@@ -272,6 +288,7 @@ FIELD_CHECKS: dict[str, Check] = {
     "lr": _number_in(0.0, math.inf, low_open=True, high_open=True),
     "lr_end_factor": _number_in(0.0, 1.0),
     "gamma": _number_in(0.0, 1.0, high_open=True),
+    "n_step": _int_in(1),
     "epsilon_start": _number_in(0.0, 1.0),
     "epsilon_end": _number_in(0.0, 1.0),
     "epsilon_decay": _check_epsilon_decay,
@@ -295,6 +312,11 @@ FIELD_CHECKS: dict[str, Check] = {
     "output_dir": _check_output_dir,
     "workers": _int_in(1),
     "overwrite": _boolean,
+    "map_pool": _int_in(0, 100_000),
+    "validation_maps": _int_in(1, 100_000),
+    "share_weights": _boolean,
+    "coverage_bonus": _number_in(0.0, math.inf, high_open=True),
+    "on_target_bonus": _number_in(0.0, math.inf, high_open=True),
 }
 
 

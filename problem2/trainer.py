@@ -27,8 +27,10 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
+from map_pool import training_maps, validation_maps
 from models import export_policy, observation_mask
 from multi_agent_env import NUM_ACTIONS, MultiAgentEnv, VectorMultiAgentEnv
+from n_step import NStepWindow
 from paired_networks import FlatAdam, PairedQNetworks
 from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED, PolicyFn, evaluate_policy
@@ -79,12 +81,14 @@ class Rollout:
     prev_obs: np.ndarray  # (N, 2, D) observations one step earlier (zeros at an episode start)
     has_prev: np.ndarray  # (N,) float32, 1.0 where prev_obs is real
     returns: np.ndarray  # (N,) return of the running episodes
+    window: NStepWindow  # the steps whose n-step transitions are not complete yet
 
     @classmethod
-    def start(cls, env: VectorMultiAgentEnv) -> Rollout:
+    def start(cls, env: VectorMultiAgentEnv, n_step: int = 1, gamma: float = 0.99) -> Rollout:
         obs = env.reset()
         n = env.n_envs
-        return cls(env, obs, np.zeros_like(obs), np.zeros(n, np.float32), np.zeros(n))
+        zeros = np.zeros(n, np.float32)
+        return cls(env, obs, np.zeros_like(obs), zeros, np.zeros(n), NStepWindow(n_step, gamma, n))
 
     def advance(
         self, next_obs: np.ndarray, rewards: np.ndarray, finished: np.ndarray
@@ -124,11 +128,13 @@ class MultiAgentTrainer:
         self.rng = np.random.default_rng(self.seed)
         self.noise_rng = torch.Generator().manual_seed(self.seed)
 
-        self.rollout = Rollout.start(self.make_vector_env(cfg.num_envs, self.seed))
+        self.rollout = self.start_rollout(cfg.num_envs, self.seed)
         self.obs_dim = self.rollout.env.obs_dim
         self.mask = torch.tensor(observation_mask(self.mode, self.obs_dim))
         self.online = PairedQNetworks(self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, cfg.dueling)
         self.target = PairedQNetworks(self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, cfg.dueling)
+        if cfg.share_weights:  # one set of weights: B starts as a copy of A
+            self.online.load_agents([self.online.agent(0)] * 2)
         self.target.load_state_dict(self.online.state_dict())
         self.target.requires_grad_(False)
         self.optimizer = FlatAdam(self.online.flat, lr=cfg.lr)  # = torch.optim.Adam, faster
@@ -139,11 +145,11 @@ class MultiAgentTrainer:
             None
             if cfg.dueling
             else FastTDGradient(
-                self.online, self.target, self.mask, cfg.gamma, self.dial, cfg.comm_noise,
+                self.online, self.target, self.mask, self.dial, cfg.comm_noise,
                 self.noise_rng, weighted=cfg.prioritized,
             )
         )  # fmt: skip
-        self._batches: dict[tuple, tuple[TransitionBatch, dict[str, np.ndarray]]] = {}
+        self._batches: dict[tuple, tuple[TransitionBatch, np.ndarray, torch.Tensor]] = {}
         self.epsilon = cfg.epsilon_start
         self.env_steps = self.episodes = self.updates = 0
         self.last_td_errors: torch.Tensor | None = None  # (2, B) of the last update
@@ -157,18 +163,33 @@ class MultiAgentTrainer:
         self.best_selection: dict[str, float] = {}
         self._best_state = {k: v.clone() for k, v in self.online.state_dict().items()}
         self._episode_rollout: Rollout | None = None  # for train_episode()
+        self._evaluation_envs: dict[int, VectorMultiAgentEnv] = {}  # by number of copies
 
     # ------------------------------------------------------------------ acting
-    def make_vector_env(self, n_envs: int, seed: int | None) -> VectorMultiAgentEnv:
-        """``n_envs`` copies of the training map with the reward the trainer learns from."""
+    def make_vector_env(
+        self, n_envs: int, seed: int | None, validation: bool = False
+    ) -> VectorMultiAgentEnv:
+        """``n_envs`` copies of the training map with the reward the trainer learns from;
+        with ``map_pool`` > 0, copies that draw from the training maps (tracking the cells
+        seen, for the coverage bonus) or, for ``validation``, from the validation maps."""
+        cfg, size = self.cfg, self.env.grid_size
+        maps = {}
+        if cfg.map_pool > 0:
+            pool = validation_maps(cfg.validation_maps, size) if validation else None
+            maps = dict(map_pool=training_maps(cfg.map_pool, size) if pool is None else pool)
+            maps["track_coverage"] = not validation and cfg.coverage_bonus > 0
         return VectorMultiAgentEnv(
             n_envs,
-            grid=self.env.grid,
+            grid=None if maps else self.env.grid,
             obs_window=self.env.obs_window,
             max_steps=self.env.max_steps,
             seed=seed,
-            reward_mode=self.cfg.reward_mode,
+            reward_mode=cfg.reward_mode,
+            **maps,
         )
+
+    def start_rollout(self, n_envs: int, seed: int | None) -> Rollout:
+        return Rollout.start(self.make_vector_env(n_envs, seed), self.cfg.n_step, self.cfg.gamma)
 
     @property
     def network_A(self) -> torch.nn.Module:
@@ -213,34 +234,53 @@ class MultiAgentTrainer:
 
     # ------------------------------------------------------------------ learning
     def store(
-        self, rollout: Rollout, actions: np.ndarray, messages: np.ndarray,
-        rewards: np.ndarray, next_obs: np.ndarray, terminated: np.ndarray,
+        self, rollout: Rollout, actions: np.ndarray, messages: np.ndarray, rewards: np.ndarray,
+        next_obs: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
     ) -> None:  # fmt: skip
-        """Push N joint transitions; with each, the observations one step earlier (DIAL).
-        ``next_obs`` is the true next observation also where an episode was cut off."""
-        fields = dict(
+        """Push the joint transitions that this step of the N episodes completes (N of them
+        with n_step 1; see :class:`n_step.NStepWindow`); with each, the observations
+        one step before its start (DIAL). ``next_obs`` is the true next observation also
+        where an episode was cut off (``truncated``). Into a buffer that was first filled by
+        hand (the ten fields only) it pushes this step's one-step transitions instead."""
+        start = dict(
             state_A=rollout.obs[:, 0], state_B=rollout.obs[:, 1],
             action_A=actions[:, 0], action_B=actions[:, 1],
-            comm_A=messages[:, 0], comm_B=messages[:, 1], reward=rewards,
-            next_state_A=next_obs[:, 0], next_state_B=next_obs[:, 1], done=terminated,
+            comm_A=messages[:, 0], comm_B=messages[:, 1],
         )  # fmt: skip
-        if not len(self.replay_buffer) or "prev_state_A" in self.replay_buffer.field_names:
-            # (A buffer first filled by hand holds the ten fields only.)
-            fields |= dict(
-                prev_state_A=rollout.prev_obs[:, 0],
-                prev_state_B=rollout.prev_obs[:, 1],
-                has_prev=rollout.has_prev,
-            )
-        self.replay_buffer.push_batch(**fields)
+        if len(self.replay_buffer) and "discount" not in self.replay_buffer.field_names:
+            # A buffer first filled by hand holds the ten fields of one-step transitions.
+            fields = start | dict(
+                reward=rewards, next_state_A=next_obs[:, 0], next_state_B=next_obs[:, 1],
+                done=terminated,
+            )  # fmt: skip
+            self.replay_buffer.push_batch(**fields)
+            return
+        start |= dict(
+            prev_state_A=rollout.prev_obs[:, 0],
+            prev_state_B=rollout.prev_obs[:, 1],
+            has_prev=rollout.has_prev,
+        )
+        finished = terminated | truncated
+        fields = rollout.window.add(start, rewards, next_obs, rollout.obs, terminated, finished)
+        if fields:  # the environment checked the actions and clipped the messages
+            self.replay_buffer.push_batch(validate=False, **fields)
 
     def sample(self, batch_size: int) -> TransitionBatch:
-        """A batch from the replay buffer, in tensors reused from update to update."""
-        stored = self.replay_buffer.field_names
-        if (batch_size, stored) not in self._batches:
-            batch = TransitionBatch.empty(batch_size, self.obs_dim)
-            self._batches = {(batch_size, stored): (batch, batch.buffer_views(stored))}
-        batch, views = self._batches[(batch_size, stored)]
-        _, weights, self.last_indices = self.replay_buffer.sample_batch(batch_size, out=views)
+        """A batch from the replay buffer: its packed rows, gathered into one tensor that
+        is reused from update to update and that the batch's fields view."""
+        layout = self.replay_buffer.layout
+        width = max(columns.stop for columns in layout.values())
+        key = (batch_size, tuple(layout), width)
+        if key not in self._batches:
+            rows = torch.zeros(batch_size, width)
+            batch = TransitionBatch.of_rows(rows, layout, self.obs_dim)
+            actions = TransitionBatch.stored_actions(rows, layout)
+            self._batches = {key: (batch, rows.numpy(), actions)}
+        batch, rows, actions = self._batches[key]
+        weights, self.last_indices = self.replay_buffer.sample_rows(batch_size, rows)
+        batch.actions.copy_(actions)
+        if "discount" not in layout:  # transitions pushed by hand: d = γ (1 − done)
+            torch.mul(batch.done, -self.cfg.gamma, out=batch.discount).add_(self.cfg.gamma)
         if self.cfg.prioritized:
             batch.weights.copy_(torch.from_numpy(weights))
         return batch
@@ -249,14 +289,16 @@ class MultiAgentTrainer:
         """The Huber TD loss, summed over both agents (the assignment's L = L_A + L_B).
 
         Returns (loss with gradient, TD errors δ (2, B), Q(s, a) (2, B)), the last two
-        detached. Terminal only when both reached the target; Double-DQN target."""
+        detached. Terminal only when both reached the target; Double-DQN target. With
+        n-step returns R is the discounted reward of k <= n steps and d = γ^k (0 where
+        terminal); with k = 1 that is r and γ (1 − done)."""
         obs, next_obs = batch.obs * self.mask, batch.next_obs * self.mask
         if self.dial:
             obs, next_obs = self.splice_messages(batch, obs, next_obs)
-        with torch.no_grad():  # y = r + γ (1 − done) Q_target(s', argmax_a Q_online(s', a))
+        with torch.no_grad():  # y = R + d Q_target(s', argmax_a Q_online(s', a))
             best_next = self.online(next_obs)[0].max(dim=-1, keepdim=True).indices
             next_value = self.target(next_obs)[0].gather(-1, best_next)[..., 0]
-            target = batch.reward + self.cfg.gamma * (1.0 - batch.done) * next_value
+            target = batch.reward + batch.discount * next_value
         q_taken = self.online(obs)[0].gather(-1, batch.actions.unsqueeze(-1))[..., 0]
         per_sample = F.smooth_l1_loss(q_taken, target, reduction="none")  # (2, B)
         loss = (per_sample * batch.weights).mean(dim=1).sum()
@@ -273,7 +315,10 @@ class MultiAgentTrainer:
         with gradient and with noise on the logit, lets A's TD loss train B's message
         head (and vice versa). Where no previous observation is stored (an episode start,
         or a transition pushed by hand) the stored message stays. The message in the next
-        observation comes from the partner's target network on ``obs``, without gradient.
+        observation s' comes from the partner's target network, without gradient, on the
+        partner's observation one step before s' (``last_obs``: ``obs`` itself for one-step
+        transitions), as it would have been sent; with n-step returns the message that
+        actually arrived was sent by an older network with exploration noise.
         """
         m = self.obs_dim - 2
         _, logits = self.online(batch.prev_obs * self.mask)
@@ -283,7 +328,8 @@ class MultiAgentTrainer:
         has_prev = batch.has_prev.view(1, -1, 1) > 0
         received = torch.where(has_prev, torch.sigmoid(logits).flip(0), obs[..., m : m + 1])
         with torch.no_grad():
-            next_received = torch.sigmoid(self.target(obs)[1]).flip(0)
+            last_obs = batch.last_obs * self.mask
+            next_received = torch.sigmoid(self.target(last_obs)[1]).flip(0)
 
         def with_message(x: torch.Tensor, message: torch.Tensor) -> torch.Tensor:
             return torch.cat([x[..., :m], message, x[..., m + 1 :]], dim=-1)
@@ -303,12 +349,24 @@ class MultiAgentTrainer:
             loss_tensor, self.last_td_errors, q_taken = self.td_loss(batch)
             loss_tensor.backward()
             loss, mean_q = float(loss_tensor.detach()), float(q_taken.mean())
-        self.online.clip_grad_norm_(self.cfg.max_grad_norm)
-        self.optimizer.step()
+        if self.cfg.share_weights:  # one shared parameter: the sum of both agents' gradients
+            for gradient in self.online.gradients():  # each (2, ...), agent axis first
+                gradient.copy_(gradient.sum(dim=0, keepdim=True).expand_as(gradient))
+        self.optimizer.step(grad_divisor=self.online.clip_divisor(self.cfg.max_grad_norm))
         self.updates += 1
         self._losses.append(loss)
         self._mean_qs.append(mean_q)
         return loss
+
+    def learning_rewards(self, rewards: np.ndarray, info: dict[str, np.ndarray]) -> np.ndarray:
+        """The team rewards (N,) plus the optional shaping, which only learning sees:
+        ``coverage_bonus`` per newly seen cell, ``on_target_bonus`` per agent on the target."""
+        cfg = self.cfg
+        if cfg.on_target_bonus > 0:
+            rewards = rewards + cfg.on_target_bonus * info["on_target"].sum(axis=1)
+        if cfg.coverage_bonus > 0 and "newly_seen" in info:
+            rewards = rewards + cfg.coverage_bonus * info["newly_seen"]
+        return rewards
 
     # ------------------------------------------------------------------ schedules
     def update_and_sync_target(self) -> None:
@@ -366,7 +424,10 @@ class MultiAgentTrainer:
             actions, messages = self.act(rollout.obs, self.epsilon, self.rng, noisy_messages=True)
             next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
             # 3. Store. Only "both on target" is terminal; the time limit is a cut-off.
-            self.store(rollout, actions, messages, rewards, info["final_obs"], terminated)
+            learned = self.learning_rewards(rewards, info)
+            self.store(
+                rollout, actions, messages, learned, info["final_obs"], terminated, truncated
+            )
             finished = terminated | truncated
             self.recent_returns.extend(rollout.advance(next_obs, rewards, finished).tolist())
             self.recent_successes.extend(terminated[finished].tolist())
@@ -394,12 +455,15 @@ class MultiAgentTrainer:
         """Play one episode in a single environment, learning as :meth:`train` does;
         returns (episode_reward, success)."""
         if self._episode_rollout is None:
-            self._episode_rollout = Rollout.start(self.make_vector_env(1, self.seed + 1))
+            self._episode_rollout = self.start_rollout(1, self.seed + 1)
         rollout, cfg = self._episode_rollout, self.cfg
         while True:
             actions, messages = self.act(rollout.obs, self.epsilon, self.rng, noisy_messages=True)
             next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
-            self.store(rollout, actions, messages, rewards, info["final_obs"], terminated)
+            learned = self.learning_rewards(rewards, info)
+            self.store(
+                rollout, actions, messages, learned, info["final_obs"], terminated, truncated
+            )
             finished = terminated | truncated
             returns = rollout.advance(next_obs, rewards, finished)
             self.env_steps += 1
@@ -415,10 +479,21 @@ class MultiAgentTrainer:
         self, num_episodes: int = 10, epsilon: float = 0.0, seed: int = EVAL_SEED
     ) -> tuple[float, float]:
         """(mean reward, success rate) over fixed episodes (the test episodes by default),
-        under the reward the trainer learns from."""
-        env = self.make_vector_env(min(num_episodes, 500), None)
-        summary = evaluate_policy(env, self.policy(epsilon), num_episodes, seed=seed)
+        under the reward the trainer learns from (unshaped); on the validation maps when
+        training on a map pool."""
+        summary = self.evaluation_summary(num_episodes, epsilon, seed)
         return summary["mean_return"], summary["success_rate"]
+
+    def evaluation_summary(
+        self, num_episodes: int, epsilon: float, seed: int
+    ) -> dict[str, float | int | None]:
+        """:func:`rollout.evaluate_policy` of the current policy on fixed episodes drawn
+        from ``seed``, in environments made once per run (each evaluation reseeds them)."""
+        n_envs = min(num_episodes, 500)
+        if n_envs not in self._evaluation_envs:
+            self._evaluation_envs[n_envs] = self.make_vector_env(n_envs, None, validation=True)
+        env = self._evaluation_envs[n_envs]
+        return evaluate_policy(env, self.policy(epsilon), num_episodes, seed=seed)
 
     def evaluate_and_log(self, progress: Callable[[dict[str, Any]], None] | None) -> None:
         """Evaluate on the validation episodes, remember the best weights ("selection"),

@@ -1,9 +1,11 @@
-"""The dynamics, observations and rewards of Problem 2, for N copies of one map at once.
+"""The dynamics, observations and rewards of Problem 2, for N copies at once.
 
 ``VectorMultiAgentEnv`` holds the only implementation of the environment, stepping N copies
 with NumPy arrays (the trainer collects experience from 64 copies, the evaluator runs 1000
 test episodes together). ``multi_agent_env.MultiAgentEnv`` is the course interface: a thin
 N = 1 view of it. Observations, actions and rewards are described in ``multi_agent_env``.
+The copies share one map by default; they may also each hold their own (``grids``), or
+draw a new map from a pool at every episode start (``map_pool``).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from grid_maps import (
     OFF_GRID,
     TARGET,
     check_grid,
+    check_grid_stack,
     generate_map,
 )
 
@@ -44,13 +47,21 @@ def _check_seed(seed: object, name: str = "seed") -> int | None:
 
 
 class VectorMultiAgentEnv:
-    """``n_envs`` copies of one map stepped together; all state lives in NumPy arrays.
+    """``n_envs`` copies stepped together; all state lives in NumPy arrays.
 
     Positions are kept as flat indices into the map padded by ``obs_window // 2`` cells of
     -1 on each side, so a move is one addition, a wall check one lookup and an observation
     patch one gather. ``seed`` draws the map (unless ``grid`` is given, which is validated
     and used instead, its shape replacing ``grid_size``) and, through a separate stream
     spawned with ``np.random.SeedSequence``, the agents' start cells.
+
+    Several maps: ``grids`` (N, H, W) gives copy i map i for its lifetime; ``map_pool``
+    (M, H, W) makes every copy draw a map uniformly from the pool at each episode start
+    (from the same stream as the start cells, map first). The M maps' padded tables are
+    stacked, and a flat position indexes the stack (map m's cells are ``m * P .. m * P +
+    P - 1``, P padded cells per map), so a step costs what it costs with one map.
+    ``track_coverage`` adds ``info["newly_seen"]`` (N,): grid cells that entered either
+    agent's patch for the first time in the episode on this step.
 
     One team reward per step (never a per-agent sum):
       * ``reward_mode="per_step"`` (default, the assignment's table): +10 when both agents
@@ -73,6 +84,9 @@ class VectorMultiAgentEnv:
         reward_mode: str = "per_step",
         grid: np.ndarray | None = None,
         auto_reset: bool = True,
+        grids: np.ndarray | None = None,
+        map_pool: np.ndarray | None = None,
+        track_coverage: bool = False,
     ) -> None:
         self.n_envs = _positive_int(n_envs, "n_envs")
         if not _is_integer(obs_window) or obs_window < 3 or obs_window % 2 == 0:
@@ -84,12 +98,32 @@ class VectorMultiAgentEnv:
         self.reward_mode = reward_mode
         seed = _check_seed(seed)
         self.auto_reset = bool(auto_reset)
-        self.grid = generate_map(grid_size, seed) if grid is None else check_grid(grid)
-        self.grid.flags.writeable = False
-        self.grid_size: tuple[int, int] = (int(self.grid.shape[0]), int(self.grid.shape[1]))
+        self.track_coverage = bool(track_coverage)
+        if sum(option is not None for option in (grid, grids, map_pool)) > 1:
+            raise ValueError("give at most one of grid, grids and map_pool")
+        self._draw_maps = map_pool is not None
+        if grids is not None or map_pool is not None:
+            stacked = grids if grids is not None else map_pool
+            self.grids = check_grid_stack(stacked, "grids" if grids is not None else "map_pool")
+            if grids is not None and len(self.grids) != self.n_envs:
+                raise ValueError(f"grids must hold n_envs = {self.n_envs} maps, got {len(grids)}")
+            self.grid = self.grids[0] if len(self.grids) == 1 else None  # else: map_indices
+        else:
+            self.grid = generate_map(grid_size, seed) if grid is None else check_grid(grid)
+            self.grid.flags.writeable = False
+            self.grids = self.grid[None]
+        self.grid_size: tuple[int, int] = (int(self.grids.shape[1]), int(self.grids.shape[2]))
         self.obs_dim = self.obs_window**2 + 2
         self._rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
         self._build_lookup_tables()
+        self._map_index = np.zeros(self.n_envs, dtype=np.int64)
+        if grids is not None:
+            self._map_index = np.arange(self.n_envs)
+        self._copy_base = self._map_index * self._cells_per_map  # first flat index of the map
+        self._copy_target = self._target_flat[self._map_index]  # (N,) flat target cells
+        if self.track_coverage:
+            self._seen = np.zeros((self.n_envs, self._cells_per_map), dtype=bool)
+            self._seen_count = np.zeros(self.n_envs, dtype=np.int64)
         self._flat = np.zeros((self.n_envs, 2), dtype=np.int64)
         self._messages = np.zeros((self.n_envs, 2), dtype=np.float32)
         self._steps = np.zeros(self.n_envs, dtype=np.int64)
@@ -98,11 +132,14 @@ class VectorMultiAgentEnv:
         self.reset()
 
     def _build_lookup_tables(self) -> None:
+        """Tables over the M stacked padded maps (flat index m * P + cell)."""
         rows, cols = self.grid_size
+        n_maps = len(self.grids)
         pad = self._pad = self.obs_window // 2
         self._padded_cols = padded_cols = cols + 2 * pad
-        padded = np.full((rows + 2 * pad, padded_cols), OFF_GRID, dtype=np.float32)
-        padded[pad : pad + rows, pad : pad + cols] = self.grid
+        padded = np.full((n_maps, rows + 2 * pad, padded_cols), OFF_GRID, dtype=np.float32)
+        padded[:, pad : pad + rows, pad : pad + cols] = self.grids
+        self._cells_per_map = cells_per_map = padded[0].size
         self._cell_values = padded.ravel()
         self._passable = (self._cell_values == FREE) | (self._cell_values == TARGET)
         self._move_offsets = ACTION_DELTAS @ np.array([padded_cols, 1])
@@ -110,20 +147,39 @@ class VectorMultiAgentEnv:
         # cells are never read (agents stay inside the grid).
         all_cells = np.arange(padded.size)
         patch_rows, patch_cols = np.mgrid[-pad : pad + 1, -pad : pad + 1]
-        patch_offsets = (patch_rows * padded_cols + patch_cols).ravel()
+        self._patch_offsets = patch_offsets = (patch_rows * padded_cols + patch_cols).ravel()
         self._patches = np.take(self._cell_values, all_cells[:, None] + patch_offsets, mode="clip")
-        self._row_col = np.stack(np.divmod(all_cells, padded_cols), axis=-1) - pad  # (P, 2)
+        local_cells = all_cells % cells_per_map
+        self._row_col = np.stack(np.divmod(local_cells, padded_cols), axis=-1) - pad  # (MP, 2)
         self._distances = None  # (P, P) normalised distances, if small enough to tabulate
-        if padded.size <= MAX_TABULATED_CELLS:
-            offsets = self._row_col[:, None, :] - self._row_col[None, :, :]
+        if cells_per_map <= MAX_TABULATED_CELLS:
+            local = self._row_col[:cells_per_map]
+            offsets = local[:, None, :] - local[None, :, :]
             self._distances = (
                 np.hypot(offsets[..., 0], offsets[..., 1]) / np.hypot(rows, cols)
             ).astype(np.float32)
-        self._start_cells = np.flatnonzero(self._cell_values == FREE)
-        self._target_flat = int(np.flatnonzero(self._cell_values == TARGET)[0])
+        free = (self._cell_values == FREE).reshape(n_maps, cells_per_map)
+        self._free_counts = free.sum(axis=1)  # (M,)
+        # (M, max free) flat free cells of each map, sorted, padded with its first one
+        order = np.argsort(~free, axis=1, kind="stable")[:, : self._free_counts.max()]
+        self._start_cells_by_map = order + (np.arange(n_maps) * cells_per_map)[:, None]
+        self._start_cells = self._start_cells_by_map[0, : self._free_counts[0]]
+        self._target_flat = np.flatnonzero(self._cell_values == TARGET)  # (M,)
+        self._off_grid = (padded[0] == OFF_GRID).ravel()  # (P,) padding cells
 
     def _to_flat(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Flat cell indices within one padded map (add ``_copy_base`` for copy i's map)."""
         return (np.asarray(rows) + self._pad) * self._padded_cols + np.asarray(cols) + self._pad
+
+    def _bases_for(self, rows: np.ndarray) -> np.ndarray | int:
+        """Offsets of each copy's map, broadcastable to ``rows`` (leading axis: copies)."""
+        if len(self.grids) == 1:
+            return 0
+        if rows.ndim == 0 or rows.shape[0] != self.n_envs:
+            raise ValueError(
+                f"with several maps, cells need a leading axis of {self.n_envs} copies"
+            )
+        return self._copy_base.reshape((-1,) + (1,) * (rows.ndim - 1))
 
     def _check_cells(self, positions: object, name: str) -> np.ndarray:
         """``positions`` (N, 2, 2) integer (row, col) cells inside the grid, not obstacles."""
@@ -138,7 +194,8 @@ class VectorMultiAgentEnv:
                 f"{name} must be cells inside the {self.grid_size[0]}x{self.grid_size[1]} grid "
                 f"and not obstacles, got {positions.tolist()}"
             )
-        return self._to_flat(positions[..., 0], positions[..., 1])
+        rows, cols = positions[..., 0], positions[..., 1]
+        return self._to_flat(rows, cols) + self._bases_for(rows)
 
     # ----------------------------------------------------------------------------- state
     @property
@@ -155,7 +212,7 @@ class VectorMultiAgentEnv:
         episode goes on from there (step count and messages kept). An agent placed on the
         target counts as having reached it (no arrival bonus for that)."""
         self._flat = self._check_cells(positions, "positions")
-        self._visited |= self._flat == self._target_flat
+        self._visited |= self._flat == self._copy_target[:, None]
 
     @property
     def messages(self) -> np.ndarray:
@@ -167,22 +224,40 @@ class VectorMultiAgentEnv:
         """Steps taken in the current episode of each copy, (N,) int64."""
         return self._steps.copy()
 
+    def _single_map(self, name: str) -> None:
+        if self.grid is None:
+            raise ValueError(f"{name} needs one map; this environment holds several (grids)")
+
     @property
     def target_position(self) -> tuple[int, int]:
-        row, col = self._row_col[self._target_flat]
+        """The target cell of the one map (ValueError with several maps)."""
+        self._single_map("target_position")
+        row, col = self._row_col[self._target_flat[0]]
         return int(row), int(col)
 
     @property
+    def target_positions(self) -> np.ndarray:
+        """Target cell (N, 2) of each copy's current map."""
+        return self._rows_cols(self._copy_target)
+
+    @property
+    def map_indices(self) -> np.ndarray:
+        """Index (N,) int64 into ``grids`` of the map each copy plays now."""
+        return self._map_index.copy()
+
+    @property
     def free_cells(self) -> np.ndarray:
-        """Cells (M, 2) of value 0 (free, not the target): where ``reset`` places agents."""
+        """Cells (F, 2) of value 0 (free, not the target): where ``reset`` places agents."""
+        self._single_map("free_cells")
         return self._rows_cols(self._start_cells)
 
     def is_passable(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """Bool array: inside the grid and not an obstacle (free or target)."""
+        """Bool array: inside the grid and not an obstacle (free or target). With several
+        maps the leading axis of ``rows`` and ``cols`` is the copy (each its own map)."""
         rows, cols = np.asarray(rows), np.asarray(cols)
         inside = (rows >= 0) & (rows < self.grid_size[0]) & (cols >= 0) & (cols < self.grid_size[1])
         flat = self._to_flat(np.where(inside, rows, 0), np.where(inside, cols, 0))
-        return inside & self._passable[flat]
+        return inside & self._passable[flat + self._bases_for(rows)]
 
     # ------------------------------------------------------------------------ dynamics
     def _move(self, flat: np.ndarray, actions: np.ndarray) -> np.ndarray:
@@ -198,7 +273,8 @@ class VectorMultiAgentEnv:
             raise ValueError(f"actions must be integers in 0..{NUM_ACTIONS - 1}, got {actions}")
         if not self.is_passable(rows, cols).all():
             raise ValueError("cells must be inside the grid and not obstacles")
-        return self._rows_cols(self._move(self._to_flat(rows, cols), actions))
+        flat = self._to_flat(rows, cols) + self._bases_for(np.asarray(rows))
+        return self._rows_cols(self._move(flat, actions))
 
     def _observe(self, flat: np.ndarray, messages: np.ndarray) -> np.ndarray:
         """Observations (n, 2, obs_dim) float32 from flat positions and sent messages (n, 2)."""
@@ -207,6 +283,8 @@ class VectorMultiAgentEnv:
         obs[:, :, :patch_size] = np.take(self._patches, flat, axis=0)
         obs[:, :, patch_size] = messages[:, ::-1]  # each agent receives its partner's
         if self._distances is not None:
+            if len(self.grids) > 1:  # the table is indexed by cells of one map
+                flat = flat % self._cells_per_map
             distance = self._distances[flat[:, 0], flat[:, 1]]
         else:
             offset = self._row_col[flat[:, 0]] - self._row_col[flat[:, 1]]
@@ -218,21 +296,52 @@ class VectorMultiAgentEnv:
         """Observations (N, 2, obs_dim) float32 of the current state."""
         return self._observe(self._flat, self._messages)
 
+    def _draw_maps_for(self, rows: np.ndarray) -> None:
+        """With a map pool, give copies ``rows`` a uniformly drawn map each."""
+        if self._draw_maps:
+            drawn = (self._rng.random(len(rows)) * len(self.grids)).astype(np.int64)
+            self._map_index[rows] = drawn
+            self._copy_base[rows] = drawn * self._cells_per_map
+            self._copy_target[rows] = self._target_flat[drawn]
+
     def _start_episodes(self, rows: np.ndarray, flat: np.ndarray | None = None) -> None:
-        """Begin new episodes in copies ``rows``: place agents (random distinct free
-        cells unless ``flat`` is given), clear messages, counters and arrival flags."""
-        if flat is None:
+        """Begin new episodes in copies ``rows`` (their maps already drawn): place agents
+        (random distinct free cells unless ``flat`` is given), clear messages, counters,
+        arrival flags and, if tracked, the cells seen."""
+        if flat is None and len(self.grids) == 1:
             n_cells = len(self._start_cells)
             # floor(uniform * n) is uniform on 0..n-1 and several times faster than
             # Generator.integers for small batches.
             cells = (self._rng.random((len(rows), 2)) * (n_cells, n_cells - 1)).astype(np.int64)
             cells[:, 1] += cells[:, 1] >= cells[:, 0]  # B uniform over the cells A left
             flat = self._start_cells[cells]
+        elif flat is None:  # the same draw, with each copy's own number of free cells
+            maps = self._map_index[rows]
+            n_cells = self._free_counts[maps][:, None] - np.array([0, 1])
+            cells = (self._rng.random((len(rows), 2)) * n_cells).astype(np.int64)
+            cells[:, 1] += cells[:, 1] >= cells[:, 0]
+            flat = self._start_cells_by_map[maps[:, None], cells]
         self._flat[rows] = flat
         self._messages[rows] = 0.0
         self._steps[rows] = 0
-        self._visited[rows] = flat == self._target_flat
+        self._visited[rows] = flat == self._copy_target[rows, None]
         self._finished[rows] = False
+        if self.track_coverage:
+            self._seen[rows] = self._off_grid
+            self._mark_seen(rows)
+
+    def _mark_seen(self, rows: np.ndarray | slice) -> np.ndarray:
+        """Mark the cells in both agents' patches as seen in copies ``rows``; return how
+        many were new."""
+        local = self._flat[rows] - self._copy_base[rows, None]  # (n, 2)
+        patch_cells = (local[:, :, None] + self._patch_offsets).reshape(len(local), -1)
+        seen = self._seen[rows]
+        np.put_along_axis(seen, patch_cells, True, axis=1)
+        self._seen[rows] = seen
+        counts = seen.sum(axis=1)
+        newly_seen = counts - self._seen_count[rows]
+        self._seen_count[rows] = counts
+        return newly_seen
 
     def reset(self, seed: int | None = None, positions: np.ndarray | None = None) -> np.ndarray:
         """Start a new episode in every copy; return observations (N, 2, obs_dim) float32.
@@ -244,12 +353,14 @@ class VectorMultiAgentEnv:
         """
         if _check_seed(seed) is not None:
             self._rng = np.random.default_rng(seed)
+        every_copy = np.arange(self.n_envs)
+        self._draw_maps_for(every_copy)
         flat = None
         if positions is not None:
             flat = self._check_cells(positions, "positions")
-            if (flat == self._target_flat).all(axis=1).any():
+            if (flat == self._copy_target[:, None]).all(axis=1).any():
                 raise ValueError("both agents start on the target: the episode would be over")
-        self._start_episodes(np.arange(self.n_envs), flat)
+        self._start_episodes(every_copy, flat)
         return self.current_observations()
 
     def check_actions(self, actions: np.ndarray) -> np.ndarray:
@@ -290,7 +401,8 @@ class VectorMultiAgentEnv:
         terminated (N,) bool, truncated (N,) bool, info)``. With ``auto_reset`` the copies
         that finished start a new episode and ``obs`` holds its first observation; ``info``
         describes the state before that reset: ``final_obs`` (N, 2, obs_dim), ``positions``
-        (N, 2, 2), ``on_target`` (N, 2) bool, ``steps`` (N,) steps taken in the episode.
+        (N, 2, 2), ``on_target`` (N, 2) bool, ``steps`` (N,) steps taken in the episode,
+        and with ``track_coverage`` ``newly_seen`` (N,) int64.
         Without ``auto_reset``, stepping after a copy finished raises ValueError.
         """
         actions = self.check_actions(actions)
@@ -303,7 +415,7 @@ class VectorMultiAgentEnv:
         flat = self._flat = self._move(self._flat, actions)
         self._messages = messages
         self._steps += 1
-        on_target = flat == self._target_flat
+        on_target = flat == self._copy_target[:, None]
         both_on_target = on_target[:, 0] & on_target[:, 1]
         if self.reward_mode == "per_step":
             pays_bonus = on_target[:, 0] != on_target[:, 1]  # exactly one on the target
@@ -321,18 +433,21 @@ class VectorMultiAgentEnv:
             "on_target": on_target,
             "steps": self._steps.copy(),
         }
+        if self.track_coverage:
+            info["newly_seen"] = self._mark_seen(slice(None))
         finished = terminated | truncated
         if not self.auto_reset:
             self._finished = finished
         elif finished.any():
             rows = np.flatnonzero(finished)
+            self._draw_maps_for(rows)
             self._start_episodes(rows)
             obs[rows] = self._observe(self._flat[rows], self._messages[rows])
         return obs, rewards, terminated, truncated, info
 
     def render(self, env_index: int = 0) -> None:
         """Print copy ``env_index``: A, B (* when sharing a cell), T target, X obstacle."""
-        cells = np.array([".", "X", "T"])[self.grid]
+        cells = np.array([".", "X", "T"])[self.grids[self._map_index[env_index]]]
         (row_a, col_a), (row_b, col_b) = self.positions[env_index]
         cells[row_a, col_a] = "A"
         cells[row_b, col_b] = "*" if (row_a, col_a) == (row_b, col_b) else "B"

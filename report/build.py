@@ -22,7 +22,10 @@ import typst
 ROOT = Path(__file__).resolve().parent.parent
 MAIN = Path("report") / "report.typ"  # relative to the root
 # Result files the report uses when they exist (sys.inputs key -> path from the root).
-OPTIONAL_INPUTS = {"reward-study": "problem2/results/studies/reward/reward_study.json"}
+OPTIONAL_INPUTS = {
+    "reward-study": "problem2/results/studies/reward/reward_study.json",
+    "map-pool-study": "problem2/results/studies/map_pool/map_pool.json",
+}
 
 
 def sys_inputs(name: str = "", email: str = "", root: Path = ROOT) -> dict[str, str]:

@@ -47,6 +47,9 @@ def trained_copies(tmp_path: Path, updates: int, **settings: object) -> list[tup
         {"mode": "full", "prioritized": True},
         {"mode": "comm", "max_grad_norm": 0.01},  # clipping on every update
         {"mode": "full", "max_grad_norm": 0.01, "prioritized": True},
+        {"mode": "independent", "n_step": 3},
+        {"mode": "full", "n_step": 3},
+        {"mode": "comm", "n_step": 4, "max_grad_norm": 0.01, "prioritized": True},
     ],
 )
 def test_hand_written_gradient_equals_autograd(tmp_path: Path, settings: dict) -> None:
@@ -77,13 +80,13 @@ def test_message_gradient_reaches_the_senders_head_only_with_dial() -> None:
     torch.manual_seed(0)
     online, target = PairedQNetworks(11, 16, 5), PairedQNetworks(11, 16, 5)
     batch = TransitionBatch.empty(8, 11)
-    for tensor in (batch.obs, batch.next_obs, batch.prev_obs):
+    for tensor in (batch.obs, batch.next_obs, batch.last_obs, batch.prev_obs, batch.discount):
         tensor.uniform_()
     batch.has_prev.fill_(1.0)
     batch.actions.random_(0, 5)
     for dial in (True, False):
         gradient = FastTDGradient(
-            online, target, torch.ones(11), 0.99, dial, 1.0, torch.Generator().manual_seed(0)
+            online, target, torch.ones(11), dial, 1.0, torch.Generator().manual_seed(0)
         )
         gradient(batch)
         message_rows = online.gradients()[2][:, -1]
@@ -93,20 +96,28 @@ def test_message_gradient_reaches_the_senders_head_only_with_dial() -> None:
 def test_dueling_is_left_to_autograd() -> None:
     online = PairedQNetworks(11, 16, 5, dueling=True)
     with pytest.raises(ValueError, match="plain network"):
-        FastTDGradient(online, online, torch.ones(11), 0.99, True, 1.0, torch.Generator())
+        FastTDGradient(online, online, torch.ones(11), True, 1.0, torch.Generator())
 
 
-def test_flat_adam_steps_as_torch_adam() -> None:
+@pytest.mark.parametrize("fused", [True, False])
+def test_flat_adam_steps_as_torch_adam_after_clipping(fused: bool) -> None:
     torch.manual_seed(0)
-    reference = torch.nn.Parameter(torch.randn(300))
-    flat = torch.nn.Parameter(reference.detach().clone())
+    networks = PairedQNetworks(4, 5, 3)
+    flat = networks.flat
+    with torch.no_grad():
+        flat.copy_(torch.randn(flat.shape))
+        reference = torch.nn.Parameter(flat.detach().clone())
+    start = flat.detach().clone()
     torch_adam, flat_adam = torch.optim.Adam([reference], lr=1e-2), FlatAdam(flat, lr=1e-2)
+    flat_adam.fused = fused
     for step in range(40):
-        gradient = torch.randn(300)
+        gradient = torch.randn(flat.shape) * (3.0 if step % 2 else 0.1)  # clipped every other
         reference.grad, flat.grad = gradient.clone(), gradient.clone()
         if step == 20:  # a learning-rate schedule changes the group's lr between steps
             torch_adam.param_groups[0]["lr"] = flat_adam.param_groups[0]["lr"] = 3e-3
+        torch.nn.utils.clip_grad_norm_([reference], 5.0)
+        flat_adam.step(grad_divisor=networks.clip_divisor(5.0))
         torch_adam.step()
-        flat_adam.step()
+        torch.testing.assert_close(flat.grad, reference.grad)  # the clipped gradient
     torch.testing.assert_close(flat.detach(), reference.detach(), rtol=1e-5, atol=1e-6)
-    assert not torch.equal(flat.detach(), torch.zeros(300))
+    assert not torch.equal(flat.detach(), start)

@@ -6,7 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from replay_buffer import TRANSITION_FIELDS, PrioritizedReplayBuffer, ReplayBuffer, SumTree
+from n_step import NStepWindow
+from replay_buffer import (
+    TRANSITION_FIELDS,
+    PrioritizedReplayBuffer,
+    ReplayBuffer,
+    SumTree,
+)
 
 
 def batch_of(first: int, count: int, obs_dim: int = 11) -> dict[str, np.ndarray]:
@@ -266,3 +272,47 @@ def test_update_priorities_needs_integer_indices_and_keeps_a_repeat_s_largest() 
     assert buffer._tree.values(np.array([1]))[0] == pytest.approx(5.0**0.6)
     buffer.update_priorities([1, 1], [2.0, 0.5])  # the largest of this update, not of all time
     assert buffer._tree.values(np.array([1]))[0] == pytest.approx(2.0**0.6)
+
+
+@pytest.mark.parametrize("n_step", [1, 2, 3])
+def test_n_step_window_gives_each_step_its_discounted_k_step_return(n_step: int) -> None:
+    """Against a direct per-episode computation: 3 copies with episodes of random length,
+    ending by termination or cut-off."""
+    gamma, n_envs, n_steps = 0.9, 3, 30
+    rng = np.random.default_rng(0)
+    window = NStepWindow(n_step, gamma, n_envs)
+    rewards = rng.normal(size=(n_steps, n_envs))
+    finished = rng.random((n_steps, n_envs)) < 0.25
+    terminated = finished & (rng.random((n_steps, n_envs)) < 0.5)
+    finished[-1] = terminated[-1] = True  # every episode ends
+    observations = rng.normal(size=(n_steps + 1, n_envs, 2, 1))
+    emitted = []
+    for t in range(n_steps):
+        start = {"step": np.full(n_envs, t), "env": np.arange(n_envs)}
+        out = window.add(
+            start, rewards[t], observations[t + 1], observations[t], terminated[t], finished[t]
+        )
+        emitted += [{k: v[i] for k, v in out.items()} for i in range(len(out.get("env", [])))]
+    expected = []
+    for env in range(n_envs):
+        for t in range(n_steps):
+            end = next(u for u in range(t, n_steps) if finished[u, env])
+            k = min(n_step, end - t + 1)
+            last = t + k - 1
+            terminal = bool(terminated[last, env]) and last == end
+            expected.append(
+                {"step": t, "env": env, "k": k, "terminal": terminal, "last": last,
+                 "reward": sum(gamma**i * rewards[t + i, env] for i in range(k))}
+            )  # fmt: skip
+    assert len(emitted) == len(expected)
+    by_start = {(int(e["step"]), int(e["env"])): e for e in emitted}
+    for want in expected:
+        got = by_start[(want["step"], want["env"])]
+        assert got["reward"] == pytest.approx(want["reward"], rel=1e-5, abs=1e-5)
+        assert bool(got["done"]) == want["terminal"]
+        assert got["next_state_A"] == pytest.approx(observations[want["last"] + 1, want["env"], 0])
+        assert got["discount"] == pytest.approx(0.0 if want["terminal"] else gamma ** want["k"])
+        if n_step > 1:
+            assert got["last_state_A"] == pytest.approx(observations[want["last"], want["env"], 0])
+        else:
+            assert "last_state_A" not in got

@@ -54,7 +54,7 @@ def collect(trainer: train.MultiAgentTrainer, steps: int) -> None:
     for _ in range(steps):
         actions, messages = trainer.act(rollout.obs, trainer.epsilon, trainer.rng, True)
         next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
-        trainer.store(rollout, actions, messages, rewards, info["final_obs"], terminated)
+        trainer.store(rollout, actions, messages, rewards, info["final_obs"], terminated, truncated)
         rollout.advance(next_obs, rewards, terminated | truncated)
 
 
@@ -148,6 +148,7 @@ def test_starter_flags_and_defaults() -> None:
     [
         (["--mode", "telepathy"], "mode must be all or a comma-separated list"),
         (["--gamma", "1.0"], "gamma"),
+        (["--n_step", "0"], "n_step"),
         (["--comm_learning", "maybe"], "comm_learning"),
         (["--epsilon_end", "0.5", "--epsilon_start", "0.1"], "epsilon_end"),
     ],

@@ -1,0 +1,316 @@
+"""Maps that cannot be memorised: train on a pool of generated maps, test on held-out ones.
+
+    python map_pool_study.py                    # 3 modes x 5 seeds, writes the study folder
+    python map_pool_study.py --total_steps 300000 --num_seeds 2 --output_dir /tmp/pool
+
+Every run trains through :meth:`trainer.MultiAgentTrainer.train` on ``map_pool`` training
+maps (a new one drawn at every episode start, :mod:`map_pool`), keeps the checkpoint that
+scored best on the validation maps, and is then tested on the 40 held-out maps
+(``HELD_OUT_MAP_SEEDS``), greedy and at epsilon = 0.05, ``--episodes_per_map`` episodes
+each, through :func:`rollout.evaluate_policy`. The memoryless and sweeping explorers, the
+random policy and the shortest-path oracle of :mod:`baselines` are tested the same way.
+
+The recipe (``RECIPE``) departs from the assignment's setting in two named ways:
+parameter sharing (one set of weights for both agents instead of independent learners)
+and reward shaping for learning (a bonus per newly seen cell and per agent on the
+target); the network is the assignment's (one hidden layer of 64 units) and the reported
+successes are the task's own (both agents on the target within 50 steps).
+
+Outputs in ``--output_dir`` (default ``results/studies/map_pool``), written into a
+staging folder and moved into place whole: ``map_pool.json`` (``held_out``: per mode the
+mean success over seeds with a 95 % bootstrap CI and the per-seed values, and the
+heuristics with a CI over maps; ``runs``: per run the selected checkpoint, its
+validation score and its success per held-out map), ``map_pool.csv``, ``map_pool.png``,
+``agent_models/`` (TorchScript pairs, mask inside, equal weights for A and B),
+``training_logs/`` (one CSV per run) and ``timing.json`` (wall times: the only file that
+differs between identical reruns).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from _atomic import remove_stale_temporaries, temporary_path_for, write_json_atomic
+from analysis_stats import BOOTSTRAP_RESAMPLES, seed_statistics
+from baselines import POLICIES
+from batch_workers import ProgressLine, run_jobs
+from map_pool import (
+    HELD_OUT_MAP_SEEDS,
+    TRAINING_FIRST_SEED,
+    VALIDATION_FIRST_SEED,
+    held_out_maps,
+)
+from matplotlib.figure import Figure
+from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
+from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED, PolicyFn, evaluate_policy
+from train_config import MODES, TrainConfig, available_cores
+from trainer import MultiAgentTrainer
+
+STUDY_DIR = Path(__file__).resolve().parent / "results" / "studies" / "map_pool"
+RECIPE: dict[str, Any] = dict(
+    map_pool=2000, validation_maps=200, share_weights=True, coverage_bonus=0.05,
+    on_target_bonus=0.1, n_step=3, gamma=0.95, lr=2.5e-4, target_update=1000,
+    total_steps=1_000_000,
+    eval_interval=50_000, eval_episodes=500, seeds=[0, 1, 2, 3, 4],
+)  # fmt: skip
+CONDITIONS = {"greedy": 0.0, "eps": EVAL_EPSILON}
+HEURISTICS = ("explorer", "sweep_explorer", "random", "oracle")
+DEPARTURES = {
+    "share_weights": "parameter sharing: both agents act with one set of weights (summed "
+    "gradient) instead of two independent learners",
+    "coverage_bonus": "reward shaping for learning only: a bonus per grid cell seen for the "
+    "first time in the episode by either agent",
+    "on_target_bonus": "reward shaping for learning only: a bonus per agent on the target",
+}
+
+
+def held_out_success(
+    make_policy: Any, episodes: int, max_steps: int, conditions: dict[str, float]
+) -> dict[str, list[float]]:
+    """Success rate per held-out map (40,) for each condition: ``make_policy(grid, map_seed,
+    epsilon)`` returns a policy; map ``s`` uses the start cells of seed ``EVAL_SEED + s``."""
+    rates: dict[str, list[float]] = {label: [] for label in conditions}
+    for map_seed, grid in zip(HELD_OUT_MAP_SEEDS, held_out_maps(), strict=True):
+        env = VectorMultiAgentEnv(min(episodes, 500), grid=grid, max_steps=max_steps)
+        for label, epsilon in conditions.items():
+            policy: PolicyFn = make_policy(grid, map_seed, epsilon)
+            summary = evaluate_policy(env, policy, episodes, seed=EVAL_SEED + map_seed)
+            rates[label].append(summary["success_rate"])
+    return rates
+
+
+def train_and_test(
+    cfg: TrainConfig, mode: str, seed: int, staging: Path, episodes: int, progress: Any = None
+) -> dict[str, Any]:
+    """Train one (mode, seed) on the map pool into ``staging``, then test it on the
+    held-out maps; returns the run's record."""
+    torch.set_num_threads(1)
+    start = time.perf_counter()
+    run_cfg = dataclasses.replace(cfg, mode=mode, seed=seed, seeds=[], workers=1)
+    # With a map pool only the grid size, window and time limit of this env are used.
+    env = MultiAgentEnv(grid_size=cfg.grid_shape(), max_steps=cfg.max_steps, seed=cfg.map_seed)
+    trainer = MultiAgentTrainer(env, run_cfg)
+    trainer.models_dir, trainer.logs_dir = staging / "agent_models", staging / "training_logs"
+
+    def report(row: dict[str, Any]) -> None:
+        if progress is not None:
+            progress.put((trainer.name, row, time.perf_counter() - start))
+
+    trainer.train(report)
+    trained = time.perf_counter() - start
+    rates = held_out_success(
+        lambda grid, map_seed, epsilon: trainer.policy(epsilon, seed=EVAL_SEED + map_seed),
+        episodes, cfg.max_steps, CONDITIONS,
+    )  # fmt: skip
+    return {
+        "mode": mode,
+        "seed": seed,
+        "selected_env_steps": trainer.best_env_steps,
+        "validation_success": {k: trainer.best_selection[k] for k in CONDITIONS},
+        "held_out_per_map": rates,
+        "held_out_mean": {label: float(np.mean(values)) for label, values in rates.items()},
+        "seconds": {"training": trained, "total": time.perf_counter() - start},
+    }
+
+
+def heuristic_results(episodes: int, max_steps: int) -> dict[str, Any]:
+    """The baseline policies on the held-out maps, seed statistics over maps."""
+    results = {}
+    for name in HEURISTICS:
+        factory = POLICIES[name]
+        rates = held_out_success(
+            lambda grid, map_seed, epsilon, f=factory: f(grid, EVAL_SEED + map_seed),
+            episodes, max_steps, {"greedy": 0.0},
+        )["greedy"]  # fmt: skip
+        results[name] = seed_statistics(rates) | {"per_map": rates}
+    return results
+
+
+def summarise(cfg: TrainConfig, runs: list[dict], heuristics: dict, episodes: int) -> dict:
+    """The study's JSON (everything but wall times)."""
+    modes: dict[str, Any] = {}
+    for mode in cfg.run_modes():
+        mine = [r for r in runs if r["mode"] == mode]
+        modes[mode] = {
+            label: seed_statistics([r["held_out_mean"][label] for r in mine])
+            for label in CONDITIONS
+        } | {"seeds": [r["seed"] for r in mine]}
+    return {
+        "description": "agents trained on a pool of generated maps, tested on held-out maps",
+        "protocol": {
+            "held_out_map_seeds": list(HELD_OUT_MAP_SEEDS),
+            "episodes_per_map": episodes,
+            "start_cells_seed": f"{EVAL_SEED} + map seed",
+            "conditions": CONDITIONS,
+            "training_map_seeds": f"from {TRAINING_FIRST_SEED}, {cfg.map_pool} maps",
+            "validation_map_seeds": f"from {VALIDATION_FIRST_SEED}, {cfg.validation_maps} maps",
+            "validation_start_cells_seed": VALIDATION_SEED,
+            "checkpoint_selection": "best mean of greedy and epsilon 0.05 success on the "
+            f"validation maps, every {cfg.eval_interval} env steps",
+            "excluded_from_pools": "the held-out maps and the default map (seed 641)",
+            "confidence": 0.95,
+            "bootstrap_resamples": BOOTSTRAP_RESAMPLES,
+            "success": "both agents on the target on the same step within max_steps",
+        },
+        "recipe": cfg.hyperparameters(),
+        "departures_from_the_assignment": DEPARTURES,
+        "held_out": {
+            "modes": modes,
+            "heuristics": heuristics,
+            "note": "modes: ci95 and per_seed over training seeds (each the mean over the "
+            "held-out maps); heuristics: ci95 and per_seed over maps",
+        },
+        "runs": {
+            f"{r['mode']}_seed{r['seed']}": {k: v for k, v in r.items() if k != "seconds"}
+            for r in runs
+        },  # fmt: skip
+    }
+
+
+def write_csv(path: Path, results: dict) -> None:
+    """One row per run and per heuristic: held-out success greedy and at epsilon 0.05."""
+    with (
+        temporary_path_for(path) as temporary,
+        open(temporary, "w", newline="", encoding="utf-8") as handle,
+    ):
+        writer = csv.writer(handle, lineterminator="\n")
+        writer.writerow(["policy", "seed", "held_out_success_greedy", "held_out_success_eps"])
+        for run in results["runs"].values():
+            means = run["held_out_mean"]
+            writer.writerow([run["mode"], run["seed"], means["greedy"], means["eps"]])
+        for name, stats in results["held_out"]["heuristics"].items():
+            writer.writerow([name, "", stats["mean"], ""])
+
+
+def plot(path: Path, results: dict) -> None:
+    """Held-out success per mode (bars: mean over seeds, whiskers: 95 % CI, dots: seeds)
+    beside the explorers (dashed lines)."""
+    fig = Figure(figsize=(6.4, 3.4), layout="constrained")
+    ax = fig.subplots()
+    modes = results["held_out"]["modes"]
+    for offset, (label, colour) in zip((-0.18, 0.18), (("greedy", "#4c72b0"), ("eps", "#dd8452")),
+                                       strict=True):  # fmt: skip
+        for i, stats in enumerate(modes[m][label] for m in modes):
+            low, high = stats["ci95"]
+            ax.bar(i + offset, stats["mean"], 0.34, color=colour,
+                   label=f"{label} (ε = {CONDITIONS[label]:g})" if i == 0 else None)  # fmt: skip
+            ax.errorbar(i + offset, stats["mean"], [[stats["mean"] - low], [high - stats["mean"]]],
+                        color="black", capsize=3)  # fmt: skip
+            ax.plot([i + offset] * len(stats["per_seed"]), stats["per_seed"], "k.", ms=3)
+    heuristics = results["held_out"]["heuristics"]
+    for name, style in (("explorer", ":"), ("sweep_explorer", "--")):
+        ax.axhline(heuristics[name]["mean"], color="grey", ls=style, label=name.replace("_", " "))
+    ax.set_xticks(range(len(modes)), list(modes))
+    ax.set_ylabel("success on 40 held-out maps")
+    ax.set_ylim(0, 1)
+    ax.grid(True, axis="y", alpha=0.3)
+    ax.legend(fontsize=7, ncols=2, loc="upper left")
+    with temporary_path_for(path) as temporary:
+        fig.savefig(temporary, format="png", dpi=150)
+
+
+def run_study(cfg: TrainConfig, episodes: int, output_dir: Path) -> dict:
+    """Train and test every (mode, seed) of ``cfg`` in ``cfg.workers`` processes, test the
+    heuristics, and install the outputs in ``output_dir`` whole (or not at all)."""
+    output_dir = Path(output_dir).resolve()
+    output_dir.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(output_dir.parent)
+    staging = output_dir.parent / f".{output_dir.name}.staging.{os.getpid()}"
+    shutil.rmtree(staging, ignore_errors=True)
+    try:
+        (staging / "agent_models").mkdir(parents=True)
+        (staging / "training_logs").mkdir()
+        jobs = [(mode, seed) for mode in cfg.run_modes() for seed in cfg.run_seeds()]
+        progress = ProgressLine(len(jobs), cfg.total_steps)
+        arguments = [(cfg, mode, seed, staging, episodes) for mode, seed in jobs]
+        runs = run_jobs(train_and_test, arguments, cfg.workers, progress)
+        heuristics = heuristic_results(episodes, cfg.max_steps)
+        results = summarise(cfg, runs, heuristics, episodes)
+        write_json_atomic(staging / "map_pool.json", results)
+        write_csv(staging / "map_pool.csv", results)
+        plot(staging / "map_pool.png", results)
+        timing = {f"{r['mode']}_seed{r['seed']}": {k: round(v, 1) for k, v in r["seconds"].items()}
+                  for r in runs}  # fmt: skip
+        write_json_atomic(staging / "timing.json", timing)
+        replaced = output_dir.parent / f".{output_dir.name}.replaced.{os.getpid()}"
+        if output_dir.exists():
+            os.replace(output_dir, replaced)
+        os.replace(staging, output_dir)
+        shutil.rmtree(replaced, ignore_errors=True)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return results
+
+
+def format_table(results: dict) -> str:
+    lines = [f"{'held-out success':<16} {'greedy (95% CI)':>22} {'eps 0.05 (95% CI)':>22}"]
+    for mode, entry in results["held_out"]["modes"].items():
+        cells = [f"{s['mean']:.3f} [{s['ci95'][0]:.3f}, {s['ci95'][1]:.3f}]"
+                 for s in (entry["greedy"], entry["eps"])]  # fmt: skip
+        lines.append(f"{mode:<16} {cells[0]:>22} {cells[1]:>22}")
+    for name, stats in results["held_out"]["heuristics"].items():
+        lines.append(f"{name:<16} {stats['mean']:>9.3f} (CI over maps)")
+    return "\n".join(lines)
+
+
+def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]:
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    add = parser.add_argument
+    add("--total_steps", "--total-steps", type=int, default=RECIPE["total_steps"],
+        help="environment steps per run")  # fmt: skip
+    add("--num_seeds", "--num-seeds", type=int, default=len(RECIPE["seeds"]),
+        help="training seeds per mode (seeds 0, 1, ...)")  # fmt: skip
+    add("--mode", default="all", help="all, or a comma-separated list of " + ", ".join(MODES))
+    add("--map_pool", "--map-pool", type=int, default=RECIPE["map_pool"], help="training maps")
+    add("--episodes_per_map", "--episodes-per-map", type=int, default=500,
+        help="test episodes per held-out map and condition (1..100000)")  # fmt: skip
+    add("--workers", type=int, default=available_cores(), help="parallel training processes")
+    add("--output_dir", "--output-dir", type=Path, default=STUDY_DIR,
+        help="folder written (relative: to the current folder)")  # fmt: skip
+    args = parser.parse_args(argv)
+    if not 1 <= args.episodes_per_map <= 100_000:
+        parser.error(f"--episodes_per_map must be in 1..100000, got {args.episodes_per_map}")
+    if args.num_seeds < 1:
+        parser.error(f"--num_seeds must be a positive integer, got {args.num_seeds}")
+    if Path(args.output_dir).is_file():
+        parser.error(f"--output_dir must be a folder, not a file, got {args.output_dir}")
+    settings = RECIPE | {
+        "total_steps": args.total_steps, "seeds": list(range(args.num_seeds)),
+        "mode": args.mode, "map_pool": args.map_pool, "workers": args.workers,
+    }  # fmt: skip
+    if args.map_pool < 1:
+        parser.error(f"--map_pool must be a positive integer, got {args.map_pool}")
+    try:
+        cfg = TrainConfig(**settings).validate()
+    except ValueError as error:
+        parser.error(f"argument --{getattr(error, 'name', 'setting')}: {error}")
+    return cfg, args
+
+
+def main(argv: list[str] | None = None) -> dict:
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="replace")
+    cfg, args = parse_args(argv)
+    start = time.perf_counter()
+    results = run_study(cfg, args.episodes_per_map, args.output_dir)
+    print(format_table(results))
+    print(f"wrote {args.output_dir} ({time.perf_counter() - start:.0f} s)")
+    return results
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,235 @@
+"""Several maps in one vectorised env, the map pools, shared weights, shaping, the study."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import analysis_pipeline
+import map_pool_study
+import numpy as np
+import pytest
+import torch
+from grid_maps import DEFAULT_MAP_SEED, generate_map
+from map_pool import HELD_OUT_MAP_SEEDS, held_out_maps, training_maps, validation_maps
+from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
+from train_config import TrainConfig
+from trainer import MultiAgentTrainer
+
+MAPS = np.stack([generate_map((10, 10), seed) for seed in (0, 1, 2, 3)])
+
+
+def random_steps(env: VectorMultiAgentEnv, steps: int, seed: int) -> list[tuple]:
+    rng = np.random.default_rng(seed)
+    return [
+        env.step(rng.integers(5, size=(env.n_envs, 2)), rng.random((env.n_envs, 2)))
+        for _ in range(steps)
+    ]
+
+
+# ---------------------------------------------------------------------- one map per copy
+def test_each_copy_obeys_its_own_map_like_a_single_map_env() -> None:
+    starts = np.array([[[0, 0], [9, 9]], [[0, 9], [9, 0]], [[5, 0], [0, 5]], [[9, 4], [4, 9]]])
+    for copy, grid in enumerate(MAPS):  # the start cells must be free on every map
+        assert (grid[starts[copy, :, 0], starts[copy, :, 1]] != 1).all()
+    stacked = VectorMultiAgentEnv(4, grids=MAPS, max_steps=30, auto_reset=False)
+    singles = [VectorMultiAgentEnv(1, grid=g, max_steps=30, auto_reset=False) for g in MAPS]
+    obs = stacked.reset(positions=starts)
+    for copy, single in enumerate(singles):
+        assert np.array_equal(obs[copy], single.reset(positions=starts[copy : copy + 1])[0])
+    assert np.array_equal(stacked.target_positions, [[*np.argwhere(g == 2)[0]] for g in MAPS])
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        actions, messages = rng.integers(5, size=(4, 2)), rng.random((4, 2))
+        result = stacked.step(actions, messages)
+        for copy, single in enumerate(singles):
+            if single._finished.any():
+                continue
+            expected = single.step(actions[copy : copy + 1], messages[copy : copy + 1])
+            for mine, theirs in zip(result[:4], expected[:4], strict=True):
+                assert np.array_equal(mine[copy], theirs[0])
+            assert np.array_equal(stacked.positions[copy], single.positions[0])
+
+
+def test_pool_draws_a_map_per_episode_reproducibly() -> None:
+    env = VectorMultiAgentEnv(64, map_pool=MAPS, max_steps=5, seed=9)
+    first_maps = env.map_indices
+    assert set(first_maps.tolist()) == {0, 1, 2, 3}
+    seen = {tuple(first_maps)}
+    for step in random_steps(env, 20, 0):
+        if (step[3]).all():  # every copy cut off at 5 steps: new maps drawn
+            seen.add(tuple(env.map_indices))
+    assert len(seen) > 1  # maps change between episodes
+    rows, cols = env.positions[..., 0], env.positions[..., 1]
+    assert (env.grids[env.map_indices[:, None], rows, cols] == 0).all()  # free cells of own map
+    obs = env.reset(seed=4)
+    again = VectorMultiAgentEnv(64, map_pool=MAPS, max_steps=5, seed=123)
+    assert np.array_equal(again.reset(seed=4), obs)
+    assert np.array_equal(again.map_indices, env.map_indices)
+
+
+def test_single_map_path_is_unchanged_by_the_pool_code() -> None:
+    one = VectorMultiAgentEnv(8, seed=DEFAULT_MAP_SEED)
+    same = VectorMultiAgentEnv(8, grid=generate_map((10, 10), DEFAULT_MAP_SEED), seed=641)
+    for a, b in zip(random_steps(one, 60, 1), random_steps(same, 60, 1), strict=True):
+        for x, y in zip(a[:4], b[:4], strict=True):
+            assert np.array_equal(x, y)
+    assert one.target_position == tuple(np.argwhere(one.grid == 2)[0])
+
+
+def test_several_maps_refuse_single_map_questions_and_bad_stacks() -> None:
+    env = VectorMultiAgentEnv(4, grids=MAPS)
+    with pytest.raises(ValueError, match="several"):
+        _ = env.target_position
+    with pytest.raises(ValueError, match="n_envs"):
+        VectorMultiAgentEnv(3, grids=MAPS)
+    with pytest.raises(ValueError, match="at most one"):
+        VectorMultiAgentEnv(4, grid=MAPS[0], map_pool=MAPS)
+    broken = MAPS.copy()
+    broken[2, 0, 1] = broken[2, 1, 0] = 1  # corner (0, 0) cut off
+    with pytest.raises(ValueError, match=r"map_pool\[2\].*not connected"):
+        VectorMultiAgentEnv(4, map_pool=broken)
+
+
+def test_coverage_counts_cells_seen_for_the_first_time() -> None:
+    grid = np.zeros((5, 5), dtype=np.int64)
+    grid[4, 4] = 2
+    env = VectorMultiAgentEnv(1, grids=grid[None], track_coverage=True, auto_reset=False)
+    env.reset(positions=np.array([[[0, 0], [0, 4]]]))
+    right, stay, left = 3, 4, 2
+    newly = [env.step(np.array([[a, stay]]), np.zeros((1, 2)))[4]["newly_seen"][0]
+             for a in (right, stay, left, right, right)]  # fmt: skip
+    # A's view at (0, 0) and B's at (0, 4) cover columns 0-1 and 3-4 of rows 0-1; moving to
+    # (0, 1) shows column 2 of both rows; after that every cell of rows 0-1 has been seen.
+    assert newly == [2, 0, 0, 0, 0]
+
+
+# ---------------------------------------------------------------------- the pools
+def test_pools_are_deterministic_distinct_and_disjoint_from_the_test_maps() -> None:
+    assert HELD_OUT_MAP_SEEDS == analysis_pipeline.HELD_OUT_MAP_SEEDS
+    train, valid = training_maps(2000), validation_maps(200)
+    assert train.shape == (2000, 10, 10) and valid.shape == (200, 10, 10)
+    assert np.array_equal(
+        train[:5], np.stack([generate_map((10, 10), 100_000 + i) for i in range(5)])
+    )
+    test = {g.tobytes() for g in held_out_maps()} | {generate_map((10, 10), 641).tobytes()}
+    train_set, valid_set = {g.tobytes() for g in train}, {g.tobytes() for g in valid}
+    assert len(train_set) == 2000 and len(valid_set) == 200  # no duplicates within a pool
+    assert not train_set & test and not valid_set & test and not train_set & valid_set
+
+
+# ---------------------------------------------------------------------- trainer
+def pool_trainer(tmp_path: Path, **settings) -> MultiAgentTrainer:
+    cfg = TrainConfig(
+        mode="full", seed=3, total_steps=10**9, num_envs=16, batch_size=32, learning_starts=32,
+        buffer_size=4096, map_pool=50, validation_maps=10, output_dir=str(tmp_path), **settings,
+    ).validate()  # fmt: skip
+    return MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
+
+
+def collect(trainer: MultiAgentTrainer, steps: int) -> list[np.ndarray]:
+    rollout, learned = trainer.rollout, []
+    for _ in range(steps):
+        actions, messages = trainer.act(rollout.obs, 1.0, trainer.rng, True)
+        next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
+        learned.append(trainer.learning_rewards(rewards, info) - rewards)
+        trainer.store(rollout, actions, messages, rewards, info["final_obs"], terminated, truncated)
+        rollout.advance(next_obs, rewards, terminated | truncated)
+    return learned
+
+
+def test_shared_weights_stay_shared_after_updates(tmp_path: Path) -> None:
+    trainer = pool_trainer(tmp_path, share_weights=True)
+    collect(trainer, 10)
+    for _ in range(5):
+        trainer.update_networks(32)
+    a, b = trainer.network_A.state_dict(), trainer.network_B.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    untrained = pool_trainer(tmp_path, share_weights=True).network_A.state_dict()
+    assert not torch.equal(a["hidden.weight"], untrained["hidden.weight"])  # they did learn
+    separate = pool_trainer(tmp_path, share_weights=False)
+    collect(separate, 10)
+    separate.update_networks(32)
+    a, b = separate.network_A.state_dict(), separate.network_B.state_dict()
+    assert not torch.equal(a["hidden.weight"], b["hidden.weight"])
+
+
+def test_shared_gradient_is_the_sum_of_both_agents(tmp_path: Path) -> None:
+    """update_networks with shared weights steps along the autograd gradient of the TD loss
+    summed over the agent axis (one parameter used by both agents)."""
+    trainer = pool_trainer(tmp_path, share_weights=True, comm_noise=0.0, max_grad_norm=1e9)
+    collect(trainer, 10)
+    batch = trainer.sample(32)
+    trainer.online.zero_grad(set_to_none=True)
+    loss, _, _ = trainer.td_loss(batch)
+    loss.backward()
+    expected = [g.sum(dim=0) for g in trainer.online.gradients()]
+    trainer.sample = lambda batch_size: batch  # the same batch for update_networks
+    stepped = []
+    trainer.optimizer.step = lambda **_: stepped.append(trainer.online.flat.grad.clone())
+    trainer.update_networks(32)
+    got = trainer.online._views_of(stepped[0])
+    for mine, want in zip(got, expected, strict=True):
+        assert torch.equal(mine[0], mine[1])
+        assert torch.allclose(mine[0], want, atol=1e-6)
+
+
+def test_shaping_adds_the_bonuses_only_to_what_is_learned(tmp_path: Path) -> None:
+    trainer = pool_trainer(tmp_path, coverage_bonus=0.05, on_target_bonus=0.1)
+    assert trainer.rollout.env.track_coverage
+    bonuses = np.concatenate(collect(trainer, 30))
+    assert (bonuses >= 0).all() and bonuses.max() > 0
+    assert np.allclose(bonuses / 0.05 - np.round(bonuses / 0.05), 0, atol=1e-6)  # 0.1 = 2 x 0.05
+    plain = pool_trainer(tmp_path)
+    assert not plain.rollout.env.track_coverage
+    assert np.concatenate(collect(plain, 5)).max() == 0
+    validation = trainer.make_vector_env(8, None, validation=True)
+    assert not validation.track_coverage
+    assert {g.tobytes() for g in validation.grids} == {g.tobytes() for g in validation_maps(10)}
+
+
+# ---------------------------------------------------------------------- the study
+def tiny_study_config(**settings) -> TrainConfig:
+    return TrainConfig(**map_pool_study.RECIPE | dict(
+        total_steps=1024, num_envs=16, batch_size=32, learning_starts=256, buffer_size=2048,
+        eval_interval=512, eval_episodes=16, map_pool=30, validation_maps=8, seeds=[0],
+        workers=1, max_steps=12,
+    ) | settings).validate()  # fmt: skip
+
+
+def test_tiny_study_end_to_end_and_reproducible(tmp_path: Path) -> None:
+    out = tmp_path / "study"
+    results = map_pool_study.run_study(tiny_study_config(), episodes=4, output_dir=out)
+    files = sorted(p.name for p in out.iterdir())
+    assert files == ["agent_models", "map_pool.csv", "map_pool.json", "map_pool.png",
+                     "timing.json", "training_logs"]  # fmt: skip
+    assert not any(p.name.startswith(".") for p in tmp_path.iterdir())  # no staging left
+    saved = json.loads((out / "map_pool.json").read_text(encoding="utf-8"))
+    assert saved == json.loads(json.dumps(results))
+    held_out = saved["held_out"]
+    assert set(held_out["modes"]) == {"independent", "comm", "full"}
+    for entry in held_out["modes"].values():
+        assert entry["seeds"] == [0] and len(entry["eps"]["per_seed"]) == 1
+    assert set(held_out["heuristics"]) == set(map_pool_study.HEURISTICS)
+    heuristics = held_out["heuristics"]
+    assert heuristics["oracle"]["mean"] > heuristics["random"]["mean"]
+    run = saved["runs"]["full_seed0"]
+    assert len(run["held_out_per_map"]["greedy"]) == len(HELD_OUT_MAP_SEEDS)
+    assert run["held_out_mean"]["eps"] == pytest.approx(np.mean(run["held_out_per_map"]["eps"]))
+    models = out / "agent_models"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        pair = [torch.jit.load(str(models / f"full_seed0_agent_{a}.pt")) for a in "AB"]
+    x = torch.rand(5, 11)
+    assert torch.equal(pair[0](x)[0], pair[1](x)[0])  # shared weights exported to both
+    rows = (out / "map_pool.csv").read_text(encoding="utf-8").splitlines()
+    assert len(rows) == 1 + 3 + len(map_pool_study.HEURISTICS)
+    # The same run again: the same record and the same model bytes.
+    again = map_pool_study.run_study(tiny_study_config(mode="full"), 4, tmp_path / "again")
+    assert again["runs"]["full_seed0"] == results["runs"]["full_seed0"]
+    for agent in "AB":
+        name = f"full_seed0_agent_{agent}.pt"
+        assert (models / name).read_bytes() == (
+            tmp_path / "again" / "agent_models" / name
+        ).read_bytes()
