@@ -16,6 +16,7 @@ from analysis_runs import Experiment
 from analysis_stats import seed_statistics
 from baselines import POLICIES
 from grid_maps import generate_map
+from map_pool import HELD_OUT_MAP_SEEDS  # maps no model or setting was chosen on
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, summarize
 
@@ -94,7 +95,6 @@ def evaluate_generalization(experiment: Experiment, num_episodes: int, epsilon: 
     }
 
 
-HELD_OUT_MAP_SEEDS = tuple(range(1000, 1040))  # maps no model or setting was chosen on
 HEURISTICS = ("explorer", "sweep_explorer", "beacon_explorer")  # memoryless search, no map
 
 

@@ -20,7 +20,7 @@ from functools import lru_cache
 import numpy as np
 from grid_maps import DEFAULT_MAP_SEED, generate_map
 
-HELD_OUT_MAP_SEEDS = tuple(range(1000, 1040))  # as analysis_pipeline.HELD_OUT_MAP_SEEDS
+HELD_OUT_MAP_SEEDS = tuple(range(1000, 1040))  # also the evaluator's held-out maps
 TRAINING_FIRST_SEED = 100_000
 VALIDATION_FIRST_SEED = 200_000
 MAX_POOL_SIZE = VALIDATION_FIRST_SEED - TRAINING_FIRST_SEED  # the ranges never overlap

@@ -6,7 +6,6 @@ import json
 import warnings
 from pathlib import Path
 
-import analysis_pipeline
 import map_pool_study
 import numpy as np
 import pytest
@@ -107,7 +106,6 @@ def test_coverage_counts_cells_seen_for_the_first_time() -> None:
 
 # ---------------------------------------------------------------------- the pools
 def test_pools_are_deterministic_distinct_and_disjoint_from_the_test_maps() -> None:
-    assert HELD_OUT_MAP_SEEDS == analysis_pipeline.HELD_OUT_MAP_SEEDS
     train, valid = training_maps(2000), validation_maps(200)
     assert train.shape == (2000, 10, 10) and valid.shape == (200, 10, 10)
     assert np.array_equal(
