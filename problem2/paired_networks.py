@@ -90,11 +90,11 @@ class PairedQNetworks(nn.Module):
         grad.mul_(torch.clamp(max_norm / (norm + 1e-6), max=1.0))
         return norm
 
-    @torch.no_grad()
     def clip_divisor(self, max_norm: float) -> torch.Tensor:
         """The number (a 0-d tensor) to divide the gradient by to clip it as
         :meth:`clip_grad_norm_` does: max(1, (norm + 1e-6) / max_norm). Passed to
-        :meth:`FlatAdam.step`, the clipping happens inside the optimiser's one operation."""
+        :meth:`FlatAdam.step`, the clipping happens inside the optimiser's one operation.
+        (No autograd is involved: a gradient never requires grad.)"""
         norm = torch.linalg.vector_norm(self.flat.grad)
         return norm.add_(1e-6).div_(max_norm).clamp_min_(1.0)
 
@@ -181,10 +181,10 @@ class FlatAdam:
         if self.param.grad is not None:
             self.param.grad.zero_()
 
-    @torch.no_grad()
     def step(self, grad_divisor: torch.Tensor | None = None) -> None:
         """One Adam step; the gradient is first divided (in place) by ``grad_divisor``, a
-        0-d tensor, if given (gradient clipping: :meth:`PairedQNetworks.clip_divisor`)."""
+        0-d tensor, if given (gradient clipping: :meth:`PairedQNetworks.clip_divisor`).
+        It works on the parameter's detached data, so it needs no ``torch.no_grad``."""
         grad, (beta1, beta2) = self.param.grad, self.betas
         self.steps += 1
         if self.fused:
@@ -204,4 +204,4 @@ class FlatAdam:
         bias_correction2 = 1.0 - beta2**self.steps
         denominator = self.exp_avg_sq.sqrt().div_(math.sqrt(bias_correction2)).add_(self.eps)
         step_size = self.param_groups[0]["lr"] / bias_correction1
-        self.param.addcdiv_(self.exp_avg, denominator, value=-step_size)
+        self._param_data.addcdiv_(self.exp_avg, denominator, value=-step_size)

@@ -167,6 +167,7 @@ class FastTDGradient:
                 grad_received=(1, b), grad_prev_hidden=(online.hidden_dim, b),
             )  # fmt: skip
             buf = {k: torch.empty(2, *shape) for k, shape in shapes.items()}
+            buf["inverse_size"] = torch.tensor(1.0 / b)
             # Views used on every call, made once (each view costs about as much as an op).
             m, next_prev_x, next_prev_hidden = (
                 self.message,
@@ -194,8 +195,8 @@ class FastTDGradient:
             self._batch = batch
         return self._batch_views
 
-    @torch.no_grad()
     def __call__(self, batch: TransitionBatch) -> tuple[float, torch.Tensor, float]:
+        # No torch.no_grad needed: every tensor used is detached (views() makes sure).
         online, target, grad = self.views()
         size = batch.obs.shape[1]
         buf = self.buffers(size)
@@ -242,12 +243,14 @@ class FastTDGradient:
         if self.weighted:
             scale = batch.weights / size
             loss = float(F.huber_loss(q_taken, y, reduction="none").mul_(scale).sum())
+            grad_q = delta.clamp(-1.0, 1.0).mul_(scale)  # ∂L/∂q[a] (2, B)
         else:
-            scale = 1.0 / size
-            loss = float(F.huber_loss(q_taken, y, reduction="sum")) * scale
+            loss = float(F.huber_loss(q_taken, y, reduction="sum")) / size
+            # clamp(δ, −1, 1) / B in one operation: the Huber backward of a sum.
+            grad_q = huber_backward(buf["inverse_size"], q_taken, y)
         # Backward.
         grad_heads = buf["grad_heads"].zero_()  # (2, K, B)
-        grad_heads.scatter_(1, actions, delta.clamp(-1.0, 1.0).mul_(scale).unsqueeze(1))
+        grad_heads.scatter_(1, actions, grad_q.unsqueeze(1))
         torch.bmm(grad_heads, buf["hidden_t"], out=grad.w2)
         torch.sum(grad_heads, dim=2, out=grad.b2)
         grad_hidden = torch.bmm(online.w2_t, grad_heads, out=buf["grad_hidden"])
@@ -316,6 +319,11 @@ class LayerViews:
 def relu_backward_(grad: torch.Tensor, output: torch.Tensor) -> torch.Tensor:
     """In place: keep ``grad`` where the ReLU's ``output`` is positive, else 0."""
     return torch.ops.aten.threshold_backward.grad_input(grad, output, 0.0, grad_input=grad)
+
+
+def huber_backward(grad_of_sum: torch.Tensor, q: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """∂/∂q of ``grad_of_sum`` · Σ huber(q − y) (threshold 1): clamp(q − y, −1, 1) times it."""
+    return torch.ops.aten.huber_loss_backward(grad_of_sum, q, y, 2, 1.0)  # 2: sum
 
 
 def sigmoid_backward(grad: torch.Tensor, output: torch.Tensor) -> torch.Tensor:
