@@ -48,7 +48,8 @@ p2-evaluate: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) evaluate.py
 
 ## The studies: the reward study (both rewards, 3 modes x 10 seeds, checkpoints chosen by
-## the trained reward's own return, and the exact DP), messages without DIAL, a panel of maps.
+## the trained reward's own return, and the exact DP), messages without DIAL, a panel of maps,
+## and agents trained on a pool of 2000 generated maps, tested on 40 held-out maps.
 studies: p2-studies p2-evaluate
 
 p2-studies: $(RUNTIME_STAMP)
@@ -61,6 +62,7 @@ p2-studies: $(RUNTIME_STAMP)
 	cd problem2 && for map in 0 1 2 3 4; do \
 		$(PY) train.py --map_seed $$map --num_seeds 3 --overwrite \
 			--output_dir $(P2_STUDIES)/map_panel/map$$map || exit 1; done
+	cd problem2 && $(PY) map_pool_study.py
 
 ## The written report, built from the result files (seconds). Your name on the cover:
 ##   make report NAME="Full Name" EMAIL="you@usc.edu"   (only values given on this command line)
