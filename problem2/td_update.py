@@ -196,8 +196,15 @@ class FastTDGradient:
         return self._batch_views
 
     def __call__(self, batch: TransitionBatch) -> tuple[float, torch.Tensor, float]:
-        # No torch.no_grad needed: every tensor used is detached (views() makes sure).
-        online, target, grad = self.views()
+        online, target, grad = self.views()  # plain views, made outside inference mode
+        # Nothing here needs autograd (every tensor used is detached): inference mode skips
+        # its bookkeeping on each operation. The activations it creates stay in this class.
+        with torch.inference_mode():
+            return self._loss_and_gradient(batch, online, target, grad)
+
+    def _loss_and_gradient(
+        self, batch: TransitionBatch, online: LayerViews, target: LayerViews, grad: LayerViews
+    ) -> tuple[float, torch.Tensor, float]:
         size = batch.obs.shape[1]
         buf = self.buffers(size)
         obs_t, next_obs_t, prev_obs_t, last_obs_t, actions = self.batch_views(batch)

@@ -149,7 +149,7 @@ class MultiAgentTrainer:
                 self.noise_rng, weighted=cfg.prioritized,
             )
         )  # fmt: skip
-        self._batches: dict[tuple, tuple[TransitionBatch, np.ndarray, torch.Tensor]] = {}
+        self._batches: dict[tuple, tuple[TransitionBatch, np.ndarray, torch.Tensor, dict]] = {}
         self.epsilon = cfg.epsilon_start
         self.env_steps = self.episodes = self.updates = 0
         self.last_td_errors: torch.Tensor | None = None  # (2, B) of the last update
@@ -204,7 +204,7 @@ class MultiAgentTrainer:
         self, obs: np.ndarray, epsilon: float, rng: np.random.Generator, noisy_messages: bool
     ) -> tuple[np.ndarray, np.ndarray]:
         """obs (N, 2, D) -> ε-greedy actions (N, 2) int64 and messages (N, 2) float32."""
-        with torch.no_grad():
+        with torch.inference_mode():  # = no_grad, and cheaper per operation
             q_values, logits = self.online(torch.from_numpy(obs).transpose(0, 1) * self.mask)
             if noisy_messages and self.cfg.comm_noise > 0:
                 logits = logits + self.cfg.comm_noise * torch.randn(
@@ -268,15 +268,15 @@ class MultiAgentTrainer:
     def sample(self, batch_size: int) -> TransitionBatch:
         """A batch from the replay buffer: its packed rows, gathered into one tensor that
         is reused from update to update and that the batch's fields view."""
-        layout = self.replay_buffer.layout
-        width = max(columns.stop for columns in layout.values())
-        key = (batch_size, tuple(layout), width)
+        layout = self.replay_buffer.layout  # fixed once the buffer holds a transition
+        key = (batch_size, id(layout), len(layout))
         if key not in self._batches:
+            width = max(columns.stop for columns in layout.values())
             rows = torch.zeros(batch_size, width)
             batch = TransitionBatch.of_rows(rows, layout, self.obs_dim)
             actions = TransitionBatch.stored_actions(rows, layout)
-            self._batches = {key: (batch, rows.numpy(), actions)}
-        batch, rows, actions = self._batches[key]
+            self._batches = {key: (batch, rows.numpy(), actions, layout)}
+        batch, rows, actions, _ = self._batches[key]  # (the layout kept: its id stays its own)
         weights, self.last_indices = self.replay_buffer.sample_rows(batch_size, rows)
         batch.actions.copy_(actions)
         if "discount" not in layout:  # transitions pushed by hand: d = γ (1 − done)
@@ -378,7 +378,8 @@ class MultiAgentTrainer:
             priorities = self.last_td_errors.abs().max(dim=0).values.numpy() + 1e-6
             self.replay_buffer.update_priorities(self.last_indices, priorities)
         if self.updates % self.cfg.target_update == 0:
-            self.target.load_state_dict(self.online.state_dict())
+            with torch.no_grad():  # = load_state_dict(online.state_dict()): one parameter
+                self.target.flat.copy_(self.online.flat)
 
     def progress(self) -> float:
         """Fraction of the training budget spent, in [0, 1]."""
