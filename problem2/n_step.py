@@ -22,6 +22,7 @@ class NStepWindow:
         self.discounts = np.array([self.gamma**k for k in range(self.n_step + 1)])  # γ^k
         # The last n steps' fields, a ring over steps: step s of the run is row s % n.
         self.starts: dict[str, np.ndarray] = {}  # each (n, N, ...), allocated at the first add
+        self._by_slot: dict[str, np.ndarray] = {}  # the same, (n * N, ...)
         self.returns = np.zeros((self.n_step, n_envs))  # discounted rewards so far (float64)
         self.steps_added = 0
         self.in_episode = np.zeros(n_envs, np.int64)  # window steps of each running episode
@@ -42,6 +43,8 @@ class NStepWindow:
             self.starts = {
                 k: np.zeros((n, *np.shape(v)), np.asarray(v).dtype) for k, v in start.items()
             }
+            # The same storage indexed by step row * N + copy (np.take on it is fastest).
+            self._by_slot = {k: v.reshape(-1, *v.shape[2:]) for k, v in self.starts.items()}
         held = min(self.steps_added, n - 1)  # earlier steps still in the window
         older = (row - np.arange(1, held + 1)) % n  # their rows, newest first (age 1, 2, ...)
         self.returns[older] += self.discounts[1 : held + 1, None] * reward
@@ -58,15 +61,15 @@ class NStepWindow:
         if not len(env):
             return {}
         lag = held - lag
-        rows = (row - lag) % n
-        fields = {name: values[rows, env] for name, values in self.starts.items()}
+        slots = (row - lag) % n * len(self.in_episode) + env
+        fields = {name: np.take(values, slots, axis=0) for name, values in self._by_slot.items()}
+        after, done = np.take(next_obs, env, axis=0), terminated[env]
         fields |= dict(
-            reward=self.returns[rows, env].astype(np.float32),
-            next_state_A=next_obs[env, 0], next_state_B=next_obs[env, 1],
-            done=terminated[env],
+            reward=np.take(self.returns, slots).astype(np.float32),
+            next_state_A=after[:, 0], next_state_B=after[:, 1], done=done,
+            discount=np.where(done, 0.0, self.discounts[lag + 1]).astype(np.float32),
         )  # fmt: skip
-        discount = np.where(terminated[env], 0.0, self.discounts[lag + 1])
-        fields["discount"] = discount.astype(np.float32)
         if n > 1:
-            fields |= dict(last_state_A=obs[env, 0], last_state_B=obs[env, 1])
+            before = np.take(obs, env, axis=0)
+            fields |= dict(last_state_A=before[:, 0], last_state_B=before[:, 1])
         return fields

@@ -135,6 +135,11 @@ class FastTDGradient:
     def views(self) -> tuple[LayerViews, LayerViews, LayerViews]:
         """Views of the online and target weights and of the online gradient, made once
         (every view costs a tensor operation): (online, target, gradient)."""
+        grad = self.online.flat.grad
+        if self._views is not None and grad is not None:  # the usual case: storage unchanged
+            key = (self.online.flat.data_ptr(), self.target.flat.data_ptr(), grad.data_ptr())
+            if self._views[:3] == key:
+                return self._views[3:]
         with torch.no_grad():
             online, target = self.online.weights(), self.target.weights()
             gradient = self.online.gradients()
