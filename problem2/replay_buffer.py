@@ -41,6 +41,8 @@ def _positive_int(value: int, name: str) -> int:
 
 def _as_array(name: str, value: object) -> np.ndarray:
     """``value`` as an array; a tensor that requires grad is refused by name."""
+    if type(value) is np.ndarray:  # the common case, nothing to convert or check
+        return value
     if getattr(value, "requires_grad", False):
         raise ValueError(
             f"{name} is a tensor that requires grad; store a plain number (.item() or .detach())"

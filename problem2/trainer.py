@@ -432,8 +432,9 @@ class MultiAgentTrainer:
             finished = terminated | truncated
             self.recent_returns.extend(rollout.advance(next_obs, rewards, finished).tolist())
             self.recent_successes.extend(terminated[finished].tolist())
+            n_finished = int(finished.sum())
             self.env_steps += rollout.env.n_envs
-            self.episodes += int(finished.sum())
+            self.episodes += n_finished
             # 4. Update if due: updates_per_step per step of the num_envs copies.
             if self.env_steps >= cfg.learning_starts:
                 update_credit += cfg.updates_per_step * rollout.env.n_envs / cfg.num_envs
@@ -442,7 +443,7 @@ class MultiAgentTrainer:
                 # 5. Target sync: a hard copy every target_update gradient updates.
                 self.update_and_sync_target()
             # 6. Schedules.
-            self.epsilon = self.next_epsilon(int(finished.sum()))
+            self.epsilon = self.next_epsilon(n_finished)
             for group in self.optimizer.param_groups:
                 group["lr"] = self.learning_rate()
         # 7. Log the end, keep the best weights, save.
