@@ -210,10 +210,11 @@ class MultiAgentTrainer:
                 logits = logits + self.cfg.comm_noise * torch.randn(
                     logits.shape, generator=self.noise_rng
                 )
-        actions = q_values.max(dim=-1).indices.T.numpy()
+            actions = q_values.max(dim=-1).indices.T.numpy()
+            messages = torch.sigmoid(logits[..., 0]).T.numpy()
         explore = rng.random(actions.shape) < epsilon
         actions = np.where(explore, rng.integers(0, NUM_ACTIONS, actions.shape), actions)
-        return actions, torch.sigmoid(logits[..., 0]).T.numpy()
+        return actions, messages
 
     def select_action(
         self, state: np.ndarray, network: torch.nn.Module, epsilon: float
