@@ -97,7 +97,9 @@ class Rollout:
         self.returns += rewards
         finished_returns = self.returns[finished].copy()
         self.returns[finished] = 0.0
-        self.prev_obs = np.where(finished[:, None, None], 0.0, self.obs).astype(np.float32)
+        self.prev_obs = np.where(finished[:, None, None], 0.0, self.obs).astype(
+            np.float32, copy=False
+        )
         self.has_prev = (~finished).astype(np.float32)
         self.obs = next_obs
         return finished_returns
