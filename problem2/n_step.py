@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from collections import deque
-
 import numpy as np
 from replay_buffer import _positive_int
 
@@ -21,8 +19,12 @@ class NStepWindow:
 
     def __init__(self, n_step: int, gamma: float, n_envs: int) -> None:
         self.n_step, self.gamma = _positive_int(n_step, "n_step"), float(gamma)
-        self.starts: deque[dict[str, np.ndarray]] = deque(maxlen=self.n_step)  # newest last
-        self.returns: deque[np.ndarray] = deque(maxlen=self.n_step)  # (N,) float64 each
+        self.discounts = np.array([self.gamma**k for k in range(self.n_step + 1)])  # γ^k
+        # The last n steps' fields, a ring over steps: step s of the run is row s % n.
+        self.starts: dict[str, np.ndarray] = {}  # each (n, N, ...), allocated at the first add
+        self._by_slot: dict[str, np.ndarray] = {}  # the same, (n * N, ...)
+        self.returns = np.zeros((self.n_step, n_envs))  # discounted rewards so far (float64)
+        self.steps_added = 0
         self.in_episode = np.zeros(n_envs, np.int64)  # window steps of each running episode
 
     def add(
@@ -30,38 +32,44 @@ class NStepWindow:
         obs: np.ndarray, terminated: np.ndarray, finished: np.ndarray,
     ) -> dict[str, np.ndarray]:  # fmt: skip
         """One step of the N episodes: ``start`` the fields of the transitions starting now
-        (state, action, message, ... each (N, ...)), ``reward`` (N,), the observations
-        after (``next_obs``) and before (``obs``) the step (N, 2, D), ``terminated`` and
-        ``finished`` (terminated or cut off) (N,) bool. Returns the transitions that are
-        complete, oldest start first, as replay fields (``last_state_*`` only for n > 1: with
-        one step it is the state); empty if none."""
-        for age, returns in enumerate(reversed(self.returns), start=1):
-            returns += self.gamma**age * reward
-        self.starts.append(start)
-        self.returns.append(np.asarray(reward, dtype=np.float64).copy())
-        self.in_episode = np.minimum(self.in_episode + 1, self.n_step)
-        parts = []
-        for lag in range(len(self.starts) - 1, -1, -1):  # steps since the transition began
-            due = (lag < self.in_episode) & (finished | (lag == self.n_step - 1))
-            if not due.any():
-                continue
-            rows = slice(None) if due.all() else np.flatnonzero(due)
-            fields = {name: value[rows] for name, value in self.starts[-1 - lag].items()}
-            fields |= dict(
-                reward=self.returns[-1 - lag][rows].astype(np.float32),
-                next_state_A=next_obs[rows, 0], next_state_B=next_obs[rows, 1],
-                done=terminated[rows],
-            )  # fmt: skip
-            discount = np.where(terminated[rows], 0.0, self.gamma ** (lag + 1))
-            fields["discount"] = discount.astype(np.float32)
-            if self.n_step > 1:
-                fields |= dict(last_state_A=obs[rows, 0], last_state_B=obs[rows, 1])
-            parts.append(fields)
+        (state, action, message, ... each (N, ...), each field with the dtype and shape of
+        the first add), ``reward`` (N,), the observations after (``next_obs``) and before
+        (``obs``) the step (N, 2, D), ``terminated`` and ``finished`` (terminated or cut
+        off) (N,) bool. Returns the transitions that are complete, oldest start first (by
+        copy within one start step), as replay fields (``last_state_*`` only for n > 1:
+        with one step it is the state); empty if none."""
+        n, row = self.n_step, self.steps_added % self.n_step
+        if not self.starts:
+            self.starts = {
+                k: np.zeros((n, *np.shape(v)), np.asarray(v).dtype) for k, v in start.items()
+            }
+            # The same storage indexed by step row * N + copy (np.take on it is fastest).
+            self._by_slot = {k: v.reshape(-1, *v.shape[2:]) for k, v in self.starts.items()}
+        held = min(self.steps_added, n - 1)  # earlier steps still in the window
+        older = (row - np.arange(1, held + 1)) % n  # their rows, newest first (age 1, 2, ...)
+        self.returns[older] += self.discounts[1 : held + 1, None] * reward
+        self.returns[row] = reward
+        for name, value in start.items():
+            self.starts[name][row] = value
+        self.steps_added += 1
+        self.in_episode = np.minimum(self.in_episode + 1, n)
+        # Steps since each transition began (oldest first), and which are due now.
+        lags = np.arange(held, -1, -1)[:, None]
+        due = (lags < self.in_episode) & (finished | (lags == n - 1))
         self.in_episode[finished] = 0
-        if len(parts) == 1:
-            return parts[0]
-        return (
-            {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
-            if parts
-            else {}
-        )
+        lag, env = np.nonzero(due)  # in order: oldest start first, then by copy
+        if not len(env):
+            return {}
+        lag = held - lag
+        slots = (row - lag) % n * len(self.in_episode) + env
+        fields = {name: np.take(values, slots, axis=0) for name, values in self._by_slot.items()}
+        after, done = np.take(next_obs, env, axis=0), terminated[env]
+        fields |= dict(
+            reward=np.take(self.returns, slots).astype(np.float32),
+            next_state_A=after[:, 0], next_state_B=after[:, 1], done=done,
+            discount=np.where(done, 0.0, self.discounts[lag + 1]).astype(np.float32),
+        )  # fmt: skip
+        if n > 1:
+            before = np.take(obs, env, axis=0)
+            fields |= dict(last_state_A=before[:, 0], last_state_B=before[:, 1])
+        return fields

@@ -135,6 +135,11 @@ class FastTDGradient:
     def views(self) -> tuple[LayerViews, LayerViews, LayerViews]:
         """Views of the online and target weights and of the online gradient, made once
         (every view costs a tensor operation): (online, target, gradient)."""
+        grad = self.online.flat.grad
+        if self._views is not None and grad is not None:  # the usual case: storage unchanged
+            key = (self.online.flat.data_ptr(), self.target.flat.data_ptr(), grad.data_ptr())
+            if self._views[:3] == key:
+                return self._views[3:]
         with torch.no_grad():
             online, target = self.online.weights(), self.target.weights()
             gradient = self.online.gradients()
@@ -164,10 +169,11 @@ class FastTDGradient:
                 next_target_hidden=(online.hidden_dim, b), next_target_q=(self.num_actions, b),
                 hidden=(online.hidden_dim, b), q=(self.num_actions, b),
                 grad_heads=(online.head_dim, b), grad_hidden=(online.hidden_dim, b),
-                grad_received=(1, b), grad_prev_hidden=(online.hidden_dim, b),
+                grad_received=(1, b), grad_prev_hidden=(online.hidden_dim, b), best_next_q=(1, b),
             )  # fmt: skip
             buf = {k: torch.empty(2, *shape) for k, shape in shapes.items()}
             buf["inverse_size"] = torch.tensor(1.0 / b)
+            buf["best_next_action"] = torch.empty(2, 1, b, dtype=torch.int64)  # with best_next_q
             # Views used on every call, made once (each view costs about as much as an op).
             m, next_prev_x, next_prev_hidden = (
                 self.message,
@@ -196,8 +202,15 @@ class FastTDGradient:
         return self._batch_views
 
     def __call__(self, batch: TransitionBatch) -> tuple[float, torch.Tensor, float]:
-        # No torch.no_grad needed: every tensor used is detached (views() makes sure).
-        online, target, grad = self.views()
+        online, target, grad = self.views()  # plain views, made outside inference mode
+        # Nothing here needs autograd (every tensor used is detached): inference mode skips
+        # its bookkeeping on each operation. The activations it creates stay in this class.
+        with torch.inference_mode():
+            return self._loss_and_gradient(batch, online, target, grad)
+
+    def _loss_and_gradient(
+        self, batch: TransitionBatch, online: LayerViews, target: LayerViews, grad: LayerViews
+    ) -> tuple[float, torch.Tensor, float]:
         size = batch.obs.shape[1]
         buf = self.buffers(size)
         obs_t, next_obs_t, prev_obs_t, last_obs_t, actions = self.batch_views(batch)
@@ -216,7 +229,9 @@ class FastTDGradient:
         online.heads(
             online.hidden(buf["next_prev_x"], buf["next_prev_hidden"]), buf["next_prev_heads"]
         )
-        best_next = buf["next_q"].max(1, keepdim=True).indices  # (2, 1, B)
+        best_next = torch.max(
+            buf["next_q"], 1, keepdim=True, out=(buf["best_next_q"], buf["best_next_action"])
+        ).indices  # (2, 1, B)
         if self.dial:
             # Received message: the partner's online network on its previous observation.
             logit = buf["logit"]
@@ -245,9 +260,10 @@ class FastTDGradient:
             loss = float(F.huber_loss(q_taken, y, reduction="none").mul_(scale).sum())
             grad_q = delta.clamp(-1.0, 1.0).mul_(scale)  # ∂L/∂q[a] (2, B)
         else:
-            loss = float(F.huber_loss(q_taken, y, reduction="sum")) / size
-            # clamp(δ, −1, 1) / B in one operation: the Huber backward of a sum.
-            grad_q = huber_backward(buf["inverse_size"], q_taken, y)
+            loss = float(huber_loss_sum(q_taken, y)) / size
+            # clamp(δ, −1, 1) / B: what the Huber backward of a sum computes, bit for bit
+            # (its kernel: clamp(q − y, −1, 1) · 1 · grad), cheaper as two plain operations.
+            grad_q = delta.clamp(-1.0, 1.0).mul_(buf["inverse_size"])
         # Backward.
         grad_heads = buf["grad_heads"].zero_()  # (2, K, B)
         grad_heads.scatter_(1, actions, grad_q.unsqueeze(1))
@@ -321,9 +337,10 @@ def relu_backward_(grad: torch.Tensor, output: torch.Tensor) -> torch.Tensor:
     return torch.ops.aten.threshold_backward.grad_input(grad, output, 0.0, grad_input=grad)
 
 
-def huber_backward(grad_of_sum: torch.Tensor, q: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    """∂/∂q of ``grad_of_sum`` · Σ huber(q − y) (threshold 1): clamp(q − y, −1, 1) times it."""
-    return torch.ops.aten.huber_loss_backward(grad_of_sum, q, y, 2, 1.0)  # 2: sum
+def huber_loss_sum(q: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """Σ huber(q − y) (threshold 1): ``F.huber_loss(q, y, reduction="sum")`` without the
+    Python checks of ``F`` (the same kernel)."""
+    return torch.ops.aten.huber_loss(q, y, 2, 1.0)  # 2: sum
 
 
 def sigmoid_backward(grad: torch.Tensor, output: torch.Tensor) -> torch.Tensor:

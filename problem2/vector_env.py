@@ -388,7 +388,7 @@ class VectorMultiAgentEnv:
             raise ValueError(
                 f"messages must be finite numbers (clipped into [0, 1]), got {messages}"
             )
-        return np.clip(messages, 0.0, 1.0).astype(np.float32)
+        return np.clip(messages, 0.0, 1.0).astype(np.float32, copy=False)  # clip made a copy
 
     def step(
         self, actions: np.ndarray, messages: np.ndarray
