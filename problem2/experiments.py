@@ -38,7 +38,7 @@ from _atomic import (
 )
 from batch_workers import ProgressLine, run_jobs
 from multi_agent_env import MultiAgentEnv, generate_map, save_map
-from rollout import EVAL_EPSILON, VALIDATION_SEED
+from rollout import EVAL_EPSILON, SELECTION_METRICS, VALIDATION_SEED, selection_score
 from train_config import DEFAULT_OUTPUT_DIR, SettingError, TrainConfig
 from trainer import MultiAgentTrainer
 
@@ -178,14 +178,13 @@ def train_one(
 
 def selection_evaluation(trainer: MultiAgentTrainer, cfg: TrainConfig) -> dict[str, Any]:
     """Greedy and ε = 0.05 results on ``cfg.final_eval_episodes`` validation episodes
-    (success rate, mean steps to success, mean return), and the score that picks the best
-    seed (by ``cfg.select_by``)."""
+    (success rate, mean steps to success, mean length, mean return), and the score that
+    picks the best seed (by ``cfg.select_by``)."""
     result: dict[str, Any] = {"select_by": cfg.select_by, "validation_seed": VALIDATION_SEED}
     for label, epsilon in (("greedy", 0.0), ("eps", EVAL_EPSILON)):
         summary = trainer.evaluation_summary(cfg.final_eval_episodes, epsilon, VALIDATION_SEED)
         result[label] = {"epsilon": epsilon, **summary}
-    metric = "success_rate" if cfg.select_by == "success" else "mean_return"
-    result["score"] = (result["greedy"][metric] + result["eps"][metric]) / 2
+    result["score"] = selection_score(result["greedy"], result["eps"], cfg.select_by)
     return result
 
 
@@ -261,7 +260,7 @@ def manifest(
     for final in finals:
         name = run_name(final["mode"], final["seed"])
         files = {agent: f"{name}_agent_{agent}.pt" for agent in "AB"}
-        metric = "success_rate" if cfg.select_by == "success" else "mean_return"
+        metric = SELECTION_METRICS[cfg.select_by][0]
         runs[name] = {
             "mode": final["mode"],
             "seed": final["seed"],

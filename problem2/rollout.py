@@ -151,7 +151,8 @@ def split_blocks(results: EpisodeResults, blocks: int) -> list[EpisodeResults]:
 
 
 def summarize(results: EpisodeResults) -> dict[str, float | int | None]:
-    """Success rate, mean steps of the successful episodes (None if none), mean return."""
+    """Success rate, mean steps of the successful episodes (None if none), mean episode
+    length (a failed episode counts the steps it ran: the time limit), mean return."""
     successes = results.successes
     return {
         "episodes": len(successes),
@@ -159,8 +160,21 @@ def summarize(results: EpisodeResults) -> dict[str, float | int | None]:
         "mean_steps_to_success": float(results.lengths[successes].mean())
         if successes.any()
         else None,
+        "mean_length": float(results.lengths.mean()),
         "mean_return": float(results.returns.mean()),
     }
+
+
+# What --select_by compares on validation episodes: the summary key, and +1 if higher is better.
+SELECTION_METRICS = {"length": ("mean_length", -1.0), "success": ("success_rate", 1.0),
+                     "return": ("mean_return", 1.0)}  # fmt: skip
+
+
+def selection_score(greedy: dict, eps: dict, select_by: str) -> float:
+    """The score (higher is better) that picks checkpoints and the best seed: the mean of the
+    greedy and the epsilon = 0.05 summaries' ``SELECTION_METRICS[select_by]`` measure."""
+    key, sign = SELECTION_METRICS[select_by]
+    return sign * (greedy[key] + eps[key]) / 2
 
 
 def evaluate_policy(

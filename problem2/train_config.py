@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from grid_maps import generate_map
+from rollout import SELECTION_METRICS
 
 MODES = ("independent", "comm", "full")
 DEFAULT_OUTPUT_DIR = Path(__file__).resolve().parent / "results"
@@ -81,7 +82,7 @@ class TrainConfig:
     epsilon_decay: float = 0.0
     """the course skeleton's multiplicative factor in (0, 1): after each finished episode
     epsilon <- max(epsilon_end, epsilon * factor) (e.g. 0.995); 0 = linear schedule"""
-    epsilon_fraction: float = 0.3
+    epsilon_fraction: float = 0.5
     """with --epsilon_decay 0: fraction (0, 1] of the run over which epsilon falls linearly"""
     hidden_dim: int = 64
     """units of the hidden layer"""
@@ -110,9 +111,10 @@ class TrainConfig:
     """episodes of each periodic evaluation (validation episodes)"""
     keep_best: bool = True
     """end with the weights that scored best in the periodic evaluations, not the last ones"""
-    select_by: str = "success"
-    """what picks checkpoints and the best seed on validation episodes: success (mean of the
-    greedy and epsilon = 0.05 success rates) or return (their mean return, trained reward)"""
+    select_by: str = "length"
+    """what picks checkpoints and the best seed on validation episodes, as the mean of the
+    greedy and epsilon = 0.05 results: length (mean episode length, a failure counting the
+    time limit; shorter is better), success (success rate) or return (trained reward)"""
     final_eval_episodes: int = 1000
     """validation episodes of the selection evaluation at the end of each run, which picks
     the best seed per mode (reported success rates come from evaluate.py)"""
@@ -306,7 +308,7 @@ FIELD_CHECKS: dict[str, Check] = {
     "eval_interval": _int_in(1),
     "eval_episodes": _int_in(1),
     "keep_best": _boolean,
-    "select_by": _one_of("success", "return"),
+    "select_by": _one_of(*SELECTION_METRICS),
     "final_eval_episodes": _int_in(1),
     "save_freq": _int_in(0),
     "output_dir": _check_output_dir,

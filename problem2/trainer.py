@@ -33,14 +33,21 @@ from multi_agent_env import NUM_ACTIONS, MultiAgentEnv, VectorMultiAgentEnv
 from n_step import NStepWindow
 from paired_networks import FlatAdam, PairedQNetworks
 from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
-from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED, PolicyFn, evaluate_policy
+from rollout import (
+    EVAL_EPSILON,
+    EVAL_SEED,
+    VALIDATION_SEED,
+    PolicyFn,
+    evaluate_policy,
+    selection_score,
+)
 from td_update import FastTDGradient, TransitionBatch
 from train_config import TrainConfig
 
 LOG_FIELDS = (
     "env_steps", "episodes", "updates", "epsilon", "loss", "mean_q", "train_return",
     "train_success", "eval_success_greedy", "eval_success_eps", "eval_return_greedy",
-    "eval_return_eps",
+    "eval_return_eps", "eval_length_greedy", "eval_length_eps",
 )  # fmt: skip
 
 
@@ -504,13 +511,10 @@ class MultiAgentTrainer:
         """Evaluate on the validation episodes, remember the best weights ("selection"),
         append a row to the log and its CSV file."""
         episodes = self.cfg.eval_episodes
-        greedy_return, greedy_success = self.evaluate(episodes, 0.0, VALIDATION_SEED)
-        eps_return, eps_success = self.evaluate(episodes, EVAL_EPSILON, VALIDATION_SEED)
-        selection = {"greedy": greedy_success, "eps": eps_success}
-        if self.cfg.select_by == "return":
-            selection["score"] = (greedy_return + eps_return) / 2
-        else:
-            selection["score"] = (greedy_success + eps_success) / 2
+        greedy = self.evaluation_summary(episodes, 0.0, VALIDATION_SEED)
+        eps = self.evaluation_summary(episodes, EVAL_EPSILON, VALIDATION_SEED)
+        selection = {"greedy": greedy["success_rate"], "eps": eps["success_rate"]}
+        selection["score"] = selection_score(greedy, eps, self.cfg.select_by)
         if selection["score"] > self.best_score:
             self.best_score, self.best_env_steps = selection["score"], self.env_steps
             self.best_selection = selection
@@ -523,8 +527,9 @@ class MultiAgentTrainer:
             env_steps=self.env_steps, episodes=self.episodes, updates=self.updates,
             epsilon=round(self.epsilon, 6), loss=mean(self._losses), mean_q=mean(self._mean_qs),
             train_return=mean(self.recent_returns), train_success=mean(self.recent_successes),
-            eval_success_greedy=greedy_success, eval_success_eps=eps_success,
-            eval_return_greedy=greedy_return, eval_return_eps=eps_return,
+            eval_success_greedy=greedy["success_rate"], eval_success_eps=eps["success_rate"],
+            eval_return_greedy=greedy["mean_return"], eval_return_eps=eps["mean_return"],
+            eval_length_greedy=greedy["mean_length"], eval_length_eps=eps["mean_length"],
         )  # fmt: skip
         self._losses, self._mean_qs = [], []
         self.log.append(row)

@@ -31,7 +31,7 @@ from baselines import POLICIES, explorer_policy, oracle_policy, random_policy
 from evaluate import MultiAgentEvaluator
 from models import MESSAGE_INDEX
 from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
-from rollout import EpisodeResults, run_episodes
+from rollout import EpisodeResults, run_episodes, selection_score, summarize
 
 from tests.conftest import PROBLEM2
 
@@ -331,3 +331,19 @@ def test_arrivals_count_only_the_steps_of_each_episode() -> None:
     assert arrived.both_arrived.tolist() == [False, True]
     assert arrived.steps_one_on_target.tolist() == [3, 2]
     assert not on_target(positions, np.array([4, 2]), target)[1, 3:].any()  # after its end
+
+
+def test_summary_counts_a_failed_episode_at_the_time_limit() -> None:
+    """Two episodes meet after 8 and 12 steps, one fails at the 50-step limit."""
+    results = EpisodeResults(
+        returns=np.array([9.3, 8.9, -5.0]),
+        successes=np.array([True, True, False]),
+        lengths=np.array([8, 12, 50]),
+    )
+    summary = summarize(results)
+    assert summary["success_rate"] == pytest.approx(2 / 3)
+    assert summary["mean_steps_to_success"] == pytest.approx(10.0)
+    assert summary["mean_length"] == pytest.approx(70 / 3)
+    faster = summary | {"mean_length": 20.0}
+    assert selection_score(faster, faster, "length") > selection_score(summary, summary, "length")
+    assert selection_score(summary, faster, "success") == pytest.approx(2 / 3)

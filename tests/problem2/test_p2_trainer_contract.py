@@ -143,18 +143,29 @@ def test_train_writes_models_and_appends_the_log_as_it_goes(tmp_path: Path) -> N
         assert (tmp_path / "out" / "agent_models" / f"comm_seed5_agent_{agent}.pt").is_file()
 
 
-def test_selection_by_return_keeps_the_checkpoint_with_the_best_validation_return(
-    tmp_path: Path,
+@pytest.mark.parametrize(
+    ("select_by", "columns", "sign"),
+    [
+        ("return", ("eval_return_greedy", "eval_return_eps"), 1.0),
+        ("length", ("eval_length_greedy", "eval_length_eps"), -1.0),
+        ("success", ("eval_success_greedy", "eval_success_eps"), 1.0),
+    ],
+)
+def test_selection_keeps_the_checkpoint_with_the_best_validation_score(
+    tmp_path: Path, select_by: str, columns: tuple[str, str], sign: float
 ) -> None:
     cfg = TrainConfig(
         mode="full", total_steps=2048, num_envs=16, learning_starts=256, batch_size=32,
-        eval_interval=512, eval_episodes=16, select_by="return", output_dir=str(tmp_path),
+        eval_interval=512, eval_episodes=16, select_by=select_by, output_dir=str(tmp_path),
     )  # fmt: skip
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
     log = trainer.train()
-    scores = [(row["eval_return_greedy"] + row["eval_return_eps"]) / 2 for row in log]
-    best = int(np.argmax(scores))
+    scores = [sign * (row[columns[0]] + row[columns[1]]) / 2 for row in log]
+    best = int(np.argmax(scores))  # the first of equal scores, as training keeps it
     assert trainer.best_selection["score"] == pytest.approx(scores[best])
     assert trainer.best_env_steps == log[best]["env_steps"]
+
+
+def test_select_by_is_refused_outside_its_choices() -> None:
     with pytest.raises(ValueError, match="select_by"):
         TrainConfig(select_by="luck").validate()
