@@ -213,13 +213,17 @@ def aggregate_measures(per_seed: list[dict]) -> dict[str, Any]:
 def evaluate_experiment(
     experiment: Experiment, num_episodes: int, epsilon: float
 ) -> ExperimentOutcome:
-    """Every mode and seed of ``experiment`` beside the baseline policies (greedy)."""
+    """Every mode and seed of ``experiment`` beside the baseline policies (greedy; the
+    oracle also under key ``eps`` at ``epsilon``, so that steps compare like with like)."""
     baselines = {}
     for name, policy in POLICIES.items():
         factory = partial(lambda grid, make: make(grid, EVAL_SEED), make=policy)
         evaluator = experiment_evaluator(experiment, epsilon, policy_factory=factory)
         results = evaluator.run(num_episodes)
         baselines[name] = episode_summary(results, evaluator.setting.target, 0.0)
+        if name == "oracle":
+            explored = evaluator.run(num_episodes, epsilon)
+            baselines[name]["eps"] = episode_summary(explored, evaluator.setting.target, epsilon)
     settings = experiment.settings
     info = {
         key: settings.get(key) for key in ("map_seed", "reward_mode", "comm_learning", "max_steps")

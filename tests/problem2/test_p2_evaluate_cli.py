@@ -94,7 +94,11 @@ def test_evaluate_writes_every_output(evaluated: tuple[dict, Path]) -> None:
     performance = json.loads((output / "performance.json").read_text())
     main_entry = performance["experiments"]["main"]
     assert set(main_entry["modes"]) == {"independent", "comm", "full"}
-    assert main_entry["baselines"]["oracle"]["success_rate"] == 1.0
+    oracle = main_entry["baselines"]["oracle"]
+    assert oracle["success_rate"] == 1.0 and oracle["epsilon"] == 0.0
+    # The oracle at the agents' test ε: random moves make its paths longer, never shorter.
+    assert oracle["eps"]["epsilon"] == 0.05
+    assert oracle["eps"]["mean_steps_to_success"] > oracle["mean_steps_to_success"]
     full = main_entry["modes"]["full"]
     assert full["seeds"] == [641, 642] and full["best_seed"] in (641, 642)
     for condition in ("greedy", "eps"):
