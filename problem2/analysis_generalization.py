@@ -16,7 +16,7 @@ from analysis_runs import Experiment
 from analysis_stats import seed_statistics
 from baselines import POLICIES
 from grid_maps import generate_map
-from map_pool import HELD_OUT_MAP_SEEDS  # maps no model or setting was chosen on
+from map_pool import HELD_OUT_MAP_SEEDS, baselines_on_held_out  # never used for a choice
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, summarize
 
@@ -108,18 +108,8 @@ def evaluate_held_out(experiment: Experiment, num_episodes: int, epsilon: float)
     ``over_seeds``, each seed's mean over the maps, with a CI over seeds; and
     ``minus_<heuristic>``, the per-map difference to each memoryless heuristic (paired by
     map), with a CI over maps."""
-    size, max_steps = experiment.grid.shape, int(experiment.settings["max_steps"])
-    per_map: dict[str, list[float]] = {name: [] for name in POLICIES}
-    for map_seed in HELD_OUT_MAP_SEEDS:
-        env = MultiAgentEnv(grid=generate_map(size, map_seed), max_steps=max_steps)
-        for name, policy in POLICIES.items():
-            factory = partial(
-                lambda g, make, seed: make(g, seed), make=policy, seed=EVAL_SEED + map_seed
-            )
-            results = MultiAgentEvaluator(env, policy_factory=factory).run(
-                num_episodes, record=False
-            )
-            per_map[name].append(float(results.successes.mean()))
+    max_steps = int(experiment.settings["max_steps"])
+    per_map = baselines_on_held_out(tuple(POLICIES), num_episodes, max_steps, experiment.grid.shape)
     modes: dict[str, dict] = {}
     for mode, per_mode in models_on_maps(
         experiment, epsilon, HELD_OUT_MAP_SEEDS, num_episodes

@@ -7,7 +7,7 @@ Every run trains through :meth:`trainer.MultiAgentTrainer.train` on ``map_pool``
 maps (a new one drawn at every episode start, :mod:`map_pool`), keeps the checkpoint that
 scored best on the validation maps, and is then tested on the 40 held-out maps
 (``HELD_OUT_MAP_SEEDS``), greedy and at epsilon = 0.05, ``--episodes_per_map`` episodes
-each, through :func:`rollout.evaluate_policy`. The memoryless and sweeping explorers, the
+each, through :func:`map_pool.held_out_success`. The memoryless and sweeping explorers, the
 random policy and the shortest-path oracle of :mod:`baselines` are tested the same way.
 
 The recipe (``RECIPE``) departs from the assignment's setting in two named ways:
@@ -42,17 +42,19 @@ import numpy as np
 import torch
 from _atomic import remove_stale_temporaries, temporary_path_for, write_json_atomic
 from analysis_stats import BOOTSTRAP_RESAMPLES, seed_statistics
-from baselines import POLICIES
 from batch_workers import ProgressLine, run_jobs
 from map_pool import (
     HELD_OUT_MAP_SEEDS,
+    MAX_POOL_SIZE,
     TRAINING_FIRST_SEED,
     VALIDATION_FIRST_SEED,
-    held_out_maps,
+    baselines_on_held_out,
+    held_out_success,
 )
 from matplotlib.figure import Figure
-from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
-from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED, PolicyFn, evaluate_policy
+from multi_agent_env import MultiAgentEnv
+from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED
+from setting_checks import SettingError, check_value, int_in
 from train_config import MODES, TrainConfig, available_cores
 from trainer import MultiAgentTrainer
 
@@ -63,6 +65,7 @@ RECIPE: dict[str, Any] = dict(
     total_steps=1_000_000, select_by="success", epsilon_fraction=0.3,
     eval_interval=50_000, eval_episodes=500, seeds=[0, 1, 2, 3, 4],
 )  # fmt: skip
+STUDY_POOL_SIZES = int_in(1, MAX_POOL_SIZE)  # a pool of maps: train.py's 0 (one map) is not one
 CONDITIONS = {"greedy": 0.0, "eps": EVAL_EPSILON}
 HEURISTICS = ("explorer", "sweep_explorer", "random", "oracle")
 DEPARTURES = {
@@ -72,23 +75,6 @@ DEPARTURES = {
     "first time in the episode by either agent",
     "on_target_bonus": "reward shaping for learning only: a bonus per agent on the target",
 }
-
-
-def held_out_success(
-    make_policy: Any, episodes: int, max_steps: int, conditions: dict[str, float]
-) -> dict[str, list[float]]:
-    """Success rate per held-out map (40,) for each condition: ``make_policy(grid, map_seed,
-    epsilon)`` returns a policy. Every map starts its episodes from the cells of seed
-    ``EVAL_SEED`` (as the evaluator's held-out test does); policies seed their own streams
-    with ``EVAL_SEED + map seed``."""
-    rates: dict[str, list[float]] = {label: [] for label in conditions}
-    for map_seed, grid in zip(HELD_OUT_MAP_SEEDS, held_out_maps(), strict=True):
-        env = VectorMultiAgentEnv(min(episodes, 500), grid=grid, max_steps=max_steps)
-        for label, epsilon in conditions.items():
-            policy: PolicyFn = make_policy(grid, map_seed, epsilon)
-            summary = evaluate_policy(env, policy, episodes, seed=EVAL_SEED)
-            rates[label].append(summary["success_rate"])
-    return rates
 
 
 def train_and_test(
@@ -127,15 +113,8 @@ def train_and_test(
 
 def heuristic_results(episodes: int, max_steps: int) -> dict[str, Any]:
     """The baseline policies on the held-out maps, seed statistics over maps."""
-    results = {}
-    for name in HEURISTICS:
-        factory = POLICIES[name]
-        rates = held_out_success(
-            lambda grid, map_seed, epsilon, f=factory: f(grid, EVAL_SEED + map_seed),
-            episodes, max_steps, {"greedy": 0.0},
-        )["greedy"]  # fmt: skip
-        results[name] = seed_statistics(rates) | {"per_map": rates}
-    return results
+    per_map = baselines_on_held_out(HEURISTICS, episodes, max_steps)
+    return {name: seed_statistics(rates) | {"per_map": rates} for name, rates in per_map.items()}
 
 
 def summarise(cfg: TrainConfig, runs: list[dict], heuristics: dict, episodes: int) -> dict:
@@ -277,29 +256,27 @@ def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]
     add("--num_seeds", "--num-seeds", type=int, default=len(RECIPE["seeds"]),
         help="training seeds per mode (seeds 0, 1, ...)")  # fmt: skip
     add("--mode", default="all", help="all, or a comma-separated list of " + ", ".join(MODES))
-    add("--map_pool", "--map-pool", type=int, default=RECIPE["map_pool"], help="training maps")
+    add("--map_pool", "--map-pool", type=int, default=RECIPE["map_pool"],
+        help=f"training maps (1..{MAX_POOL_SIZE})")  # fmt: skip
     add("--episodes_per_map", "--episodes-per-map", type=int, default=500,
         help="test episodes per held-out map and condition (1..100000)")  # fmt: skip
     add("--workers", type=int, default=available_cores(), help="parallel training processes")
     add("--output_dir", "--output-dir", type=Path, default=STUDY_DIR,
         help="folder written (relative: to the current folder)")  # fmt: skip
     args = parser.parse_args(argv)
-    if not 1 <= args.episodes_per_map <= 100_000:
-        parser.error(f"--episodes_per_map must be in 1..100000, got {args.episodes_per_map}")
-    if args.num_seeds < 1:
-        parser.error(f"--num_seeds must be a positive integer, got {args.num_seeds}")
-    if Path(args.output_dir).is_file():
-        parser.error(f"--output_dir must be a folder, not a file, got {args.output_dir}")
     settings = RECIPE | {
         "total_steps": args.total_steps, "seeds": list(range(args.num_seeds)),
         "mode": args.mode, "map_pool": args.map_pool, "workers": args.workers,
     }  # fmt: skip
-    if args.map_pool < 1:
-        parser.error(f"--map_pool must be a positive integer, got {args.map_pool}")
     try:
+        check_value("episodes_per_map", args.episodes_per_map, int_in(1, 100_000))
+        check_value("map_pool", args.map_pool, STUDY_POOL_SIZES)
+        # Flags turned into other fields are checked by their field's rule alone.
+        TrainConfig.check_field("num_seeds", args.num_seeds)  # the seeds 0..num_seeds-1
+        TrainConfig.check_field("output_dir", str(args.output_dir))  # the study's own folder
         cfg = TrainConfig(**settings).validate()
-    except ValueError as error:
-        parser.error(f"argument --{getattr(error, 'name', 'setting')}: {error}")
+    except SettingError as error:
+        parser.error(error.usage())
     return cfg, args
 
 

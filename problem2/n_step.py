@@ -15,6 +15,20 @@ class NStepWindow:
     holds), and the discount γ^k, or 0 if the episode terminated within those k steps. k is
     n, or fewer where the episode ends (terminal or cut off) before t + n. A transition
     leaves the window at step t + k - 1; with n = 1 every step is its own transition at once.
+
+    Slot layout, e.g. n = 3 steps and N = 2 copies: the fields of the transition that starts
+    at step s of the run in copy c are held in row s % 3 of ``starts`` (3, 2, ...), which is
+    slot (s % 3) * 2 + c of the flat view (6, ...)::
+
+        slot            0    1    2    3    4    5
+        row (s % 3)     0    0    1    1    2    2
+        copy c          0    1    0    1    0    1
+        start step s  0, 3 0, 3 1, 4 1, 4 2, 5 2, 5
+
+    At step 2 the transitions of step 0 are complete (k = 3, slots 0 and 1) and leave, so
+    step 3 may reuse row 0. If copy 1 is cut off at step 3, that step returns, oldest start
+    first and then by copy: copy 0 from step 1 (slot 2, k = 3), copy 1 from steps 1, 2 and 3
+    (slots 3, 5 and 1; k = 3, 2 and 1).
     """
 
     def __init__(self, n_step: int, gamma: float, n_envs: int) -> None:

@@ -20,7 +20,22 @@ from pathlib import Path
 from typing import Any
 
 from grid_maps import generate_map
+from map_pool import MAX_POOL_SIZE
 from rollout import SELECTION_METRICS
+from setting_checks import (
+    Check,
+    SettingError,
+    boolean,
+    check_value,
+    distinct_ints_in,
+    epsilon_decay,
+    folder,
+    grid_sides_in,
+    int_in,
+    modes_from,
+    number_in,
+    one_of,
+)
 
 MODES = ("independent", "comm", "full")
 DEFAULT_OUTPUT_DIR = Path(__file__).resolve().parent / "results"
@@ -166,12 +181,16 @@ class TrainConfig:
         """Raise :class:`SettingError` naming the first invalid field and its allowed range;
         return self."""
         for name, check in FIELD_CHECKS.items():
-            problem = check(getattr(self, name))
-            if problem:
-                raise SettingError(name, problem, getattr(self, name))
+            check_value(name, getattr(self, name), check)
         for names, problem in cross_field_problems(self):
             raise SettingError(names[0], problem, getattr(self, names[0]))
         return self
+
+    @staticmethod
+    def check_field(name: str, value: Any) -> None:
+        """Raise :class:`SettingError` if ``value`` breaks field ``name``'s rule (checked
+        alone: for a flag that is turned into other fields, e.g. a study's seed count)."""
+        check_value(name, value, FIELD_CHECKS[name])
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -181,144 +200,52 @@ class TrainConfig:
         return {k: v for k, v in self.to_dict().items() if k not in RUN_ONLY_FIELDS}
 
 
-class SettingError(ValueError):
-    """An invalid training setting; ``name`` is the field (the flag is ``--name``)."""
-
-    def __init__(self, name: str, problem: str, value: Any) -> None:
-        super().__init__(f"{name} {problem}, got {value!r}")
-        self.name, self.problem, self.value = name, problem, value
-
-
 # ------------------------------------------------------------------------ field checks
-Check = Callable[[Any], str | None]
-
-
-def _is_int(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
-def _int_in(low: int, high: int | None = None) -> Check:
-    allowed = f"an integer >= {low}" if high is None else f"an integer in {low}..{high}"
-
-    def check(value: Any) -> str | None:
-        ok = _is_int(value) and value >= low and (high is None or value <= high)
-        return None if ok else f"must be {allowed}"
-
-    return check
-
-
-def _number_in(low: float, high: float, low_open: bool = False, high_open: bool = False) -> Check:
-    left, right = "(" if low_open else "[", ")" if high_open else "]"
-    shown_high = "inf)" if math.isinf(high) else f"{high:g}{right}"
-    allowed = f"a finite number in {left}{low:g}, {shown_high}"
-
-    def check(value: Any) -> str | None:
-        if not (isinstance(value, (int, float)) and not isinstance(value, bool)):
-            return f"must be {allowed}"
-        ok = (
-            math.isfinite(value)
-            and (value > low if low_open else value >= low)
-            and (value < high if high_open else value <= high)
-        )
-        return None if ok else f"must be {allowed}"
-
-    return check
-
-
-def _one_of(*choices: str) -> Check:
-    return lambda value: None if value in choices else f"must be one of {', '.join(choices)}"
-
-
-def _boolean(value: Any) -> str | None:
-    return None if isinstance(value, bool) else "must be True or False"
-
-
-def _check_mode(value: Any) -> str | None:
-    message = f"must be all or a comma-separated list of distinct modes from {', '.join(MODES)}"
-    if value == "all":
-        return None
-    if not isinstance(value, str) or not value:
-        return message
-    modes = value.split(",")
-    return None if set(modes) <= set(MODES) and len(set(modes)) == len(modes) else message
-
-
-def _check_seeds(value: Any) -> str | None:
-    ok = (
-        isinstance(value, (list, tuple))
-        and all(_is_int(s) and 0 <= s <= MAX_SEED for s in value)
-        and len(set(value)) == len(value)
-    )
-    return None if ok else f"must be distinct integers in 0..{MAX_SEED}"
-
-
-def _check_grid_size(value: Any) -> str | None:
-    sides = value if isinstance(value, list) else [value]
-    ok = len(sides) in (1, 2) and all(_is_int(s) and 3 <= s <= MAX_GRID_SIDE for s in sides)
-    return None if ok else f"must be one or two integers in 3..{MAX_GRID_SIDE}"
-
-
-def _check_epsilon_decay(value: Any) -> str | None:
-    if value == 0 and not isinstance(value, bool):
-        return None
-    if _number_in(0.0, 1.0, low_open=True, high_open=True)(value) is None:
-        return None
-    return (
-        "must be 0 (linear schedule) or a multiplicative factor per episode in (0, 1), e.g. 0.995"
-    )
-
-
-def _check_output_dir(value: Any) -> str | None:
-    if not isinstance(value, (str, os.PathLike)) or not str(value):
-        return "must be a folder path"
-    return "must be a folder, not a file" if Path(value).is_file() else None
-
-
 FIELD_CHECKS: dict[str, Check] = {
-    "mode": _check_mode,
-    "seed": _int_in(0, MAX_SEED),
-    "num_seeds": _int_in(1),
-    "seeds": _check_seeds,
-    "map_seed": _int_in(0, MAX_SEED),
-    "grid_size": _check_grid_size,
-    "max_steps": _int_in(1),
-    "reward_mode": _one_of("arrival", "per_step"),
-    "total_steps": _int_in(1),
-    "num_episodes": _int_in(0),
-    "num_envs": _int_in(1),
-    "batch_size": _int_in(1),
-    "lr": _number_in(0.0, math.inf, low_open=True, high_open=True),
-    "lr_end_factor": _number_in(0.0, 1.0),
-    "gamma": _number_in(0.0, 1.0, high_open=True),
-    "n_step": _int_in(1),
-    "epsilon_start": _number_in(0.0, 1.0),
-    "epsilon_end": _number_in(0.0, 1.0),
-    "epsilon_decay": _check_epsilon_decay,
-    "epsilon_fraction": _number_in(0.0, 1.0, low_open=True),
-    "hidden_dim": _int_in(1),
-    "target_update": _int_in(1),
-    "buffer_size": _int_in(1),
-    "learning_starts": _int_in(0),
-    "updates_per_step": _int_in(1),
-    "max_grad_norm": _number_in(0.0, math.inf, low_open=True, high_open=True),
-    "comm_learning": _one_of("dial", "none"),
-    "comm_noise": _number_in(0.0, math.inf, high_open=True),
-    "dueling": _boolean,
-    "prioritized": _boolean,
-    "eval_interval": _int_in(1),
-    "eval_episodes": _int_in(1),
-    "keep_best": _boolean,
-    "select_by": _one_of(*SELECTION_METRICS),
-    "final_eval_episodes": _int_in(1),
-    "save_freq": _int_in(0),
-    "output_dir": _check_output_dir,
-    "workers": _int_in(1),
-    "overwrite": _boolean,
-    "map_pool": _int_in(0, 100_000),
-    "validation_maps": _int_in(1, 100_000),
-    "share_weights": _boolean,
-    "coverage_bonus": _number_in(0.0, math.inf, high_open=True),
-    "on_target_bonus": _number_in(0.0, math.inf, high_open=True),
+    "mode": modes_from(MODES),
+    "seed": int_in(0, MAX_SEED),
+    "num_seeds": int_in(1),
+    "seeds": distinct_ints_in(0, MAX_SEED),
+    "map_seed": int_in(0, MAX_SEED),
+    "grid_size": grid_sides_in(3, MAX_GRID_SIDE),
+    "max_steps": int_in(1),
+    "reward_mode": one_of("arrival", "per_step"),
+    "total_steps": int_in(1),
+    "num_episodes": int_in(0),
+    "num_envs": int_in(1),
+    "batch_size": int_in(1),
+    "lr": number_in(0.0, math.inf, low_open=True, high_open=True),
+    "lr_end_factor": number_in(0.0, 1.0),
+    "gamma": number_in(0.0, 1.0, high_open=True),
+    "n_step": int_in(1),
+    "epsilon_start": number_in(0.0, 1.0),
+    "epsilon_end": number_in(0.0, 1.0),
+    "epsilon_decay": epsilon_decay,
+    "epsilon_fraction": number_in(0.0, 1.0, low_open=True),
+    "hidden_dim": int_in(1),
+    "target_update": int_in(1),
+    "buffer_size": int_in(1),
+    "learning_starts": int_in(0),
+    "updates_per_step": int_in(1),
+    "max_grad_norm": number_in(0.0, math.inf, low_open=True, high_open=True),
+    "comm_learning": one_of("dial", "none"),
+    "comm_noise": number_in(0.0, math.inf, high_open=True),
+    "dueling": boolean,
+    "prioritized": boolean,
+    "eval_interval": int_in(1),
+    "eval_episodes": int_in(1),
+    "keep_best": boolean,
+    "select_by": one_of(*SELECTION_METRICS),
+    "final_eval_episodes": int_in(1),
+    "save_freq": int_in(0),
+    "output_dir": folder,
+    "workers": int_in(1),
+    "overwrite": boolean,
+    "map_pool": int_in(0, MAX_POOL_SIZE),
+    "validation_maps": int_in(1, MAX_POOL_SIZE),
+    "share_weights": boolean,
+    "coverage_bonus": number_in(0.0, math.inf, high_open=True),
+    "on_target_bonus": number_in(0.0, math.inf, high_open=True),
 }
 
 
@@ -462,11 +389,5 @@ def parse_config_or_exit(
         if extra_check is not None:
             extra_check(cfg)
     except SettingError as error:
-        parser.error(f"argument --{error.name}: {error.problem}, got {_shown(error.value)}")
+        parser.error(error.usage())
     return cfg
-
-
-def _shown(value: Any) -> str:
-    if isinstance(value, list):
-        return " ".join(str(v) for v in value)
-    return repr(value) if isinstance(value, str) else str(value)

@@ -12,43 +12,30 @@ mask (:func:`apply_observation_mask`), used wherever a network sees an observati
 :meth:`MultiAgentTrainer.train` is the algorithm, step by step; :meth:`td_loss` is the
 loss. For the plain network the update computes the gradient of that loss by hand
 (:mod:`td_update`, several times faster on a CPU, held equal to autograd by a test).
+Acting is in :mod:`trainer_acting`, the evaluations and outputs in :mod:`trainer_outputs`.
 """
 
 from __future__ import annotations
 
-import csv
 import math
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from map_pool import training_maps, validation_maps
-from models import export_policy, observation_mask
+from models import observation_mask
 from multi_agent_env import NUM_ACTIONS, MultiAgentEnv, VectorMultiAgentEnv
-from n_step import NStepWindow
 from paired_networks import FlatAdam, PairedQNetworks
 from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
-from rollout import (
-    EVAL_EPSILON,
-    EVAL_SEED,
-    VALIDATION_SEED,
-    PolicyFn,
-    evaluate_policy,
-    selection_score,
-)
+from rollout import EVAL_EPSILON
 from td_update import FastTDGradient, TransitionBatch
 from train_config import TrainConfig
-
-LOG_FIELDS = (
-    "env_steps", "episodes", "updates", "epsilon", "loss", "mean_q", "train_return",
-    "train_success", "eval_success_greedy", "eval_success_eps", "eval_return_greedy",
-    "eval_return_eps", "eval_length_greedy", "eval_length_eps",
-)  # fmt: skip
+from trainer_acting import Rollout, TrainerActing
+from trainer_outputs import TrainerOutputs
 
 
 def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndarray | torch.Tensor:
@@ -79,41 +66,13 @@ def config_from(args: Any) -> TrainConfig:
     return TrainConfig(**settings).validate()
 
 
-@dataclass
-class Rollout:
-    """N environment copies being played, and what the learner tracks for each."""
-
-    env: VectorMultiAgentEnv
-    obs: np.ndarray  # (N, 2, D) current observations of A and B
-    prev_obs: np.ndarray  # (N, 2, D) observations one step earlier (zeros at an episode start)
-    has_prev: np.ndarray  # (N,) float32, 1.0 where prev_obs is real
-    returns: np.ndarray  # (N,) return of the running episodes
-    window: NStepWindow  # the steps whose n-step transitions are not complete yet
-
-    @classmethod
-    def start(cls, env: VectorMultiAgentEnv, n_step: int = 1, gamma: float = 0.99) -> Rollout:
-        obs = env.reset()
-        n = env.n_envs
-        zeros = np.zeros(n, np.float32)
-        return cls(env, obs, np.zeros_like(obs), zeros, np.zeros(n), NStepWindow(n_step, gamma, n))
-
-    def advance(
-        self, next_obs: np.ndarray, rewards: np.ndarray, finished: np.ndarray
-    ) -> np.ndarray:
-        """Move on to ``next_obs``; return the returns of the episodes that ``finished``."""
-        self.returns += rewards
-        finished_returns = self.returns[finished].copy()
-        self.returns[finished] = 0.0
-        self.prev_obs = np.where(finished[:, None, None], 0.0, self.obs).astype(
-            np.float32, copy=False
-        )
-        self.has_prev = (~finished).astype(np.float32)
-        self.obs = next_obs
-        return finished_returns
-
-
-class MultiAgentTrainer:
+class MultiAgentTrainer(TrainerActing, TrainerOutputs):
     """Trains agents A and B of one ablation mode with one seed.
+
+    Here: the state of a run, learning from replay, the schedules and the training loop.
+    Acting (``act``, ``policy``, ``make_vector_env``, ...) is in :mod:`trainer_acting`;
+    evaluation and outputs (``evaluate``, ``evaluate_and_log``, ``save_models``, the log)
+    in :mod:`trainer_outputs`.
 
     Args:
         env: the environment whose map, window and time limit training uses.
@@ -173,74 +132,6 @@ class MultiAgentTrainer:
         self._best_state = {k: v.clone() for k, v in self.online.state_dict().items()}
         self._episode_rollout: Rollout | None = None  # for train_episode()
         self._evaluation_envs: dict[int, VectorMultiAgentEnv] = {}  # by number of copies
-
-    # ------------------------------------------------------------------ acting
-    def make_vector_env(
-        self, n_envs: int, seed: int | None, validation: bool = False
-    ) -> VectorMultiAgentEnv:
-        """``n_envs`` copies of the training map with the reward the trainer learns from;
-        with ``map_pool`` > 0, copies that draw from the training maps (tracking the cells
-        seen, for the coverage bonus) or, for ``validation``, from the validation maps."""
-        cfg, size = self.cfg, self.env.grid_size
-        maps = {}
-        if cfg.map_pool > 0:
-            pool = validation_maps(cfg.validation_maps, size) if validation else None
-            maps = dict(map_pool=training_maps(cfg.map_pool, size) if pool is None else pool)
-            maps["track_coverage"] = not validation and cfg.coverage_bonus > 0
-        return VectorMultiAgentEnv(
-            n_envs,
-            grid=None if maps else self.env.grid,
-            obs_window=self.env.obs_window,
-            max_steps=self.env.max_steps,
-            seed=seed,
-            reward_mode=cfg.reward_mode,
-            **maps,
-        )
-
-    def start_rollout(self, n_envs: int, seed: int | None) -> Rollout:
-        return Rollout.start(self.make_vector_env(n_envs, seed), self.cfg.n_step, self.cfg.gamma)
-
-    @property
-    def network_A(self) -> torch.nn.Module:
-        """Agent A's network as a standalone AgentDQN / DuelingDQN (a snapshot)."""
-        return self.online.agent(0)
-
-    @property
-    def network_B(self) -> torch.nn.Module:
-        return self.online.agent(1)
-
-    def act(
-        self, obs: np.ndarray, epsilon: float, rng: np.random.Generator, noisy_messages: bool
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """obs (N, 2, D) -> ε-greedy actions (N, 2) int64 and messages (N, 2) float32."""
-        with torch.inference_mode():  # = no_grad, and cheaper per operation
-            q_values, logits = self.online(torch.from_numpy(obs).transpose(0, 1) * self.mask)
-            if noisy_messages and self.cfg.comm_noise > 0:
-                logits = logits + self.cfg.comm_noise * torch.randn(
-                    logits.shape, generator=self.noise_rng
-                )
-            actions = q_values.max(dim=-1).indices.T.numpy()
-            messages = torch.sigmoid(logits[..., 0]).T.numpy()
-        explore = rng.random(actions.shape) < epsilon
-        actions = np.where(explore, rng.integers(0, NUM_ACTIONS, actions.shape), actions)
-        return actions, messages
-
-    def select_action(
-        self, state: np.ndarray, network: torch.nn.Module, epsilon: float
-    ) -> tuple[int, float]:
-        """ε-greedy action and message of one agent: ``state`` (obs_dim,) raw observation."""
-        masked = torch.as_tensor(state, dtype=torch.float32) * self.mask
-        with torch.no_grad():
-            q_values, comm = network(masked.unsqueeze(0))
-        action = int(q_values.argmax(dim=1).item())
-        if self.rng.random() < epsilon:
-            action = int(self.rng.integers(NUM_ACTIONS))
-        return action, float(comm.item())
-
-    def policy(self, epsilon: float = 0.0, seed: int = EVAL_SEED) -> PolicyFn:
-        """The current greedy/ε-greedy policy as a function for :func:`rollout.run_episodes`."""
-        rng = np.random.default_rng(seed)
-        return lambda obs, positions: self.act(obs, epsilon, rng, noisy_messages=False)
 
     # ------------------------------------------------------------------ learning
     def store(
@@ -486,76 +377,5 @@ class MultiAgentTrainer:
                 self.epsilon = self.next_epsilon(1)
                 return float(returns[0]), bool(terminated[0])
 
-    # ------------------------------------------------------------------ evaluation, outputs
-    def evaluate(
-        self, num_episodes: int = 10, epsilon: float = 0.0, seed: int = EVAL_SEED
-    ) -> tuple[float, float]:
-        """(mean reward, success rate) over fixed episodes (the test episodes by default),
-        under the reward the trainer learns from (unshaped); on the validation maps when
-        training on a map pool."""
-        summary = self.evaluation_summary(num_episodes, epsilon, seed)
-        return summary["mean_return"], summary["success_rate"]
 
-    def evaluation_summary(
-        self, num_episodes: int, epsilon: float, seed: int
-    ) -> dict[str, float | int | None]:
-        """:func:`rollout.evaluate_policy` of the current policy on fixed episodes drawn
-        from ``seed``, in environments made once per run (each evaluation reseeds them)."""
-        n_envs = min(num_episodes, 500)
-        if n_envs not in self._evaluation_envs:
-            self._evaluation_envs[n_envs] = self.make_vector_env(n_envs, None, validation=True)
-        env = self._evaluation_envs[n_envs]
-        return evaluate_policy(env, self.policy(epsilon), num_episodes, seed=seed)
-
-    def evaluate_and_log(self, progress: Callable[[dict[str, Any]], None] | None) -> None:
-        """Evaluate on the validation episodes, remember the best weights ("selection"),
-        append a row to the log and its CSV file."""
-        episodes = self.cfg.eval_episodes
-        greedy = self.evaluation_summary(episodes, 0.0, VALIDATION_SEED)
-        eps = self.evaluation_summary(episodes, EVAL_EPSILON, VALIDATION_SEED)
-        selection = {"greedy": greedy["success_rate"], "eps": eps["success_rate"]}
-        selection["score"] = selection_score(greedy, eps, self.cfg.select_by)
-        if selection["score"] > self.best_score:
-            self.best_score, self.best_env_steps = selection["score"], self.env_steps
-            self.best_selection = selection
-            self._best_state = {k: v.clone() for k, v in self.online.state_dict().items()}
-
-        def mean(values: Any) -> float:
-            return float(np.mean(values)) if len(values) else math.nan
-
-        row = dict(
-            env_steps=self.env_steps, episodes=self.episodes, updates=self.updates,
-            epsilon=round(self.epsilon, 6), loss=mean(self._losses), mean_q=mean(self._mean_qs),
-            train_return=mean(self.recent_returns), train_success=mean(self.recent_successes),
-            eval_success_greedy=greedy["success_rate"], eval_success_eps=eps["success_rate"],
-            eval_return_greedy=greedy["mean_return"], eval_return_eps=eps["mean_return"],
-            eval_length_greedy=greedy["mean_length"], eval_length_eps=eps["mean_length"],
-        )  # fmt: skip
-        self._losses, self._mean_qs = [], []
-        self.log.append(row)
-        with open(self.log_path, "a", newline="", encoding="utf-8") as handle:
-            csv.DictWriter(handle, LOG_FIELDS, lineterminator="\n").writerow(row)
-        if progress:
-            progress(row)
-
-    @property
-    def log_path(self) -> Path:
-        return self.logs_dir / f"{self.name}.csv"
-
-    def start_log(self) -> None:
-        """Create the log file with its header (replacing an older one)."""
-        self.logs_dir.mkdir(parents=True, exist_ok=True)
-        with open(self.log_path, "w", newline="", encoding="utf-8") as handle:
-            csv.DictWriter(handle, LOG_FIELDS, lineterminator="\n").writeheader()
-
-    def save_models(self) -> list[Path]:
-        """Export both agents (TorchScript, mask inside) as ``<mode>_seed<seed>_agent_X.pt``."""
-        return [
-            export_policy(
-                self.online.agent(index), self.mode, self.models_dir / f"{self.name}_agent_{a}.pt"
-            )
-            for index, a in enumerate("AB")
-        ]
-
-
-__all__ = ["MultiAgentTrainer", "apply_observation_mask", "config_from"]
+__all__ = ["EVAL_EPSILON", "MultiAgentTrainer", "apply_observation_mask", "config_from"]

@@ -231,3 +231,49 @@ def test_tiny_study_end_to_end_and_reproducible(tmp_path: Path) -> None:
         assert (models / name).read_bytes() == (
             tmp_path / "again" / "agent_models" / name
         ).read_bytes()
+
+
+# ---------------------------------------------------------------------- the study's flags
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--num_seeds", "0"], "argument --num_seeds: must be an integer >= 1, got 0"),
+        (["--map_pool", "0"], "argument --map_pool: must be an integer in 1..100000, got 0"),
+        (["--map_pool", "-3"], "argument --map_pool: must be an integer in 1..100000, got -3"),
+        (["--map_pool", "100001"], "argument --map_pool: must be an integer in 1..100000"),
+        (
+            ["--episodes_per_map", "0"],
+            "argument --episodes_per_map: must be an integer in 1..100000",
+        ),
+        (["--total_steps", "0"], "argument --total_steps: must be an integer >= 1, got 0"),
+        (["--workers", "0"], "argument --workers: must be an integer >= 1, got 0"),
+        (["--mode", "comm,bogus"], "argument --mode: must be all or a comma-separated list"),
+    ],
+)
+def test_study_flags_refuse_bad_values_naming_flag_and_range(
+    argv: list[str], message: str, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    with pytest.raises(SystemExit) as stop:
+        map_pool_study.parse_args([*argv, "--output_dir", str(tmp_path / "out")])
+    assert stop.value.code == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()  # refused before any work
+
+
+def test_study_output_dir_must_not_be_a_file(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    file = tmp_path / "a_file"
+    file.write_text("x", encoding="utf-8")
+    with pytest.raises(SystemExit):
+        map_pool_study.parse_args(["--output_dir", str(file)])
+    assert "argument --output_dir: must be a folder, not a file" in capsys.readouterr().err
+
+
+def test_study_flags_become_the_recipe_with_seeds_from_zero(tmp_path: Path) -> None:
+    cfg, args = map_pool_study.parse_args(
+        ["--num_seeds", "2", "--map_pool", "1", "--mode", "full", "--output_dir", str(tmp_path)]
+    )
+    assert cfg.run_seeds() == [0, 1] and cfg.map_pool == 1 and cfg.run_modes() == ["full"]
+    assert cfg.num_seeds == TrainConfig().num_seeds  # the count is stored as the seed list
+    assert args.episodes_per_map == 500
