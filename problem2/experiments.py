@@ -38,7 +38,7 @@ from _atomic import (
 )
 from batch_workers import ProgressLine, run_jobs
 from multi_agent_env import MultiAgentEnv, generate_map, save_map
-from rollout import EVAL_EPSILON, SELECTION_METRICS, VALIDATION_SEED, selection_score
+from rollout import EVAL_EPSILON, VALIDATION_SEED, select_best
 from train_config import DEFAULT_OUTPUT_DIR, SettingError, TrainConfig
 from trainer import MultiAgentTrainer
 
@@ -178,13 +178,12 @@ def train_one(
 
 def selection_evaluation(trainer: MultiAgentTrainer, cfg: TrainConfig) -> dict[str, Any]:
     """Greedy and ε = 0.05 results on ``cfg.final_eval_episodes`` validation episodes
-    (success rate, mean steps to success, mean length, mean return), and the score that
-    picks the best seed (by ``cfg.select_by``)."""
+    (success rate, mean steps to success, mean return): what picks the best seed of a mode,
+    by ``cfg.select_by`` (:func:`rollout.select_best`)."""
     result: dict[str, Any] = {"select_by": cfg.select_by, "validation_seed": VALIDATION_SEED}
     for label, epsilon in (("greedy", 0.0), ("eps", EVAL_EPSILON)):
         summary = trainer.evaluation_summary(cfg.final_eval_episodes, epsilon, VALIDATION_SEED)
         result[label] = {"epsilon": epsilon, **summary}
-    result["score"] = selection_score(result["greedy"], result["eps"], cfg.select_by)
     return result
 
 
@@ -236,8 +235,8 @@ def train_batch(cfg: TrainConfig, models_dir: Path, logs_dir: Path) -> list[dict
     )
     best = {}
     for mode in cfg.run_modes():
-        runs = [f for f in finals if f["mode"] == mode]
-        winner = max(runs, key=lambda f: (f["score"], -f["seed"]))
+        runs = sorted((f for f in finals if f["mode"] == mode), key=lambda f: f["seed"])
+        winner = runs[select_best([(f["greedy"], f["eps"]) for f in runs], cfg.select_by)]
         best[mode] = run_name(mode, winner["seed"])
         for agent in "AB":
             with temporary_path_for(models_dir / f"{mode}_agent_{agent}.pt") as temporary:
@@ -252,6 +251,9 @@ def train_batch(cfg: TrainConfig, models_dir: Path, logs_dir: Path) -> list[dict
     return finals
 
 
+SELECTION_MEASURES = ("success_rate", "mean_steps_to_success", "mean_return")
+
+
 def manifest(
     cfg: TrainConfig, finals: list[dict[str, Any]], best: dict[str, str], models_dir: Path
 ) -> dict[str, Any]:
@@ -260,17 +262,15 @@ def manifest(
     for final in finals:
         name = run_name(final["mode"], final["seed"])
         files = {agent: f"{name}_agent_{agent}.pt" for agent in "AB"}
-        metric = SELECTION_METRICS[cfg.select_by][0]
         runs[name] = {
             "mode": final["mode"],
             "seed": final["seed"],
             "models": files,
             "sha256": {a: file_sha256(models_dir / f) for a, f in files.items()},
-            "selection": {
-                "metric": metric,
-                "greedy": final["greedy"][metric],
-                "eps": final["eps"][metric],
-                "score": final["score"],
+            "selection": {"select_by": cfg.select_by}
+            | {
+                condition: {key: final[condition][key] for key in SELECTION_MEASURES}
+                for condition in ("greedy", "eps")
             },
         }
     return {"format": 1, **batch_identity(cfg), "code_version": code_version()} | {

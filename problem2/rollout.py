@@ -11,7 +11,7 @@ A policy is a plain function ``(observations (N, 2, obs_dim), positions (N, 2, 2
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -151,8 +151,7 @@ def split_blocks(results: EpisodeResults, blocks: int) -> list[EpisodeResults]:
 
 
 def summarize(results: EpisodeResults) -> dict[str, float | int | None]:
-    """Success rate, mean steps of the successful episodes (None if none), mean episode
-    length (a failed episode counts the steps it ran: the time limit), mean return."""
+    """Success rate, mean steps of the successful episodes (None if none), mean return."""
     successes = results.successes
     return {
         "episodes": len(successes),
@@ -160,21 +159,36 @@ def summarize(results: EpisodeResults) -> dict[str, float | int | None]:
         "mean_steps_to_success": float(results.lengths[successes].mean())
         if successes.any()
         else None,
-        "mean_length": float(results.lengths.mean()),
         "mean_return": float(results.returns.mean()),
     }
 
 
-# What --select_by compares on validation episodes: the summary key, and +1 if higher is better.
-SELECTION_METRICS = {"length": ("mean_length", -1.0), "success": ("success_rate", 1.0),
-                     "return": ("mean_return", 1.0)}  # fmt: skip
+SELECT_BY = ("steps", "success", "return")  # the rules of select_best (--select_by)
+SUCCESS_TOLERANCE = 0.01  # "steps": success rates this close to the best count as equal
 
 
-def selection_score(greedy: dict, eps: dict, select_by: str) -> float:
-    """The score (higher is better) that picks checkpoints and the best seed: the mean of the
-    greedy and the epsilon = 0.05 summaries' ``SELECTION_METRICS[select_by]`` measure."""
-    key, sign = SELECTION_METRICS[select_by]
-    return sign * (greedy[key] + eps[key]) / 2
+def select_best(candidates: Sequence[tuple[dict, dict]], select_by: str) -> int:
+    """Index of the best candidate (checkpoint or seed), each a pair of summaries (greedy,
+    epsilon = 0.05) on the same validation episodes; of equals, the first.
+
+    ``success`` / ``return``: the highest mean of the two success rates / returns.
+    ``steps``: among the candidates whose mean success rate is within ``SUCCESS_TOLERANCE``
+    of the best, the one with the fewest mean steps to success."""
+
+    def mean(key: str, pair: tuple[dict, dict]) -> float:
+        values = [math.inf if s[key] is None else s[key] for s in pair]
+        return (values[0] + values[1]) / 2
+
+    indices = range(len(candidates))
+    if select_by == "steps":
+        success = [mean("success_rate", pair) for pair in candidates]
+        threshold = max(success) - SUCCESS_TOLERANCE - 1e-9  # 1e-9: rates are k / episodes
+        eligible = [i for i in indices if success[i] >= threshold]
+        return min(eligible, key=lambda i: (mean("mean_steps_to_success", candidates[i]), i))
+    if select_by not in SELECT_BY:
+        raise ValueError(f"select_by must be one of {SELECT_BY}, got {select_by!r}")
+    key = "success_rate" if select_by == "success" else "mean_return"
+    return max(indices, key=lambda i: (mean(key, candidates[i]), -i))
 
 
 def evaluate_policy(

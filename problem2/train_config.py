@@ -21,7 +21,7 @@ from typing import Any
 
 from grid_maps import generate_map
 from map_pool import MAX_POOL_SIZE
-from rollout import SELECTION_METRICS
+from rollout import SELECT_BY
 from setting_checks import (
     Check,
     SettingError,
@@ -83,7 +83,7 @@ class TrainConfig:
     """transitions per gradient update"""
     lr: float = 5e-4
     """Adam learning rate at the start (finite, > 0)"""
-    lr_end_factor: float = 0.1
+    lr_end_factor: float = 0.03
     """final learning rate as a fraction of lr (0..1), reached linearly at the end of the run"""
     gamma: float = 0.99
     """discount factor, in [0, 1)"""
@@ -126,10 +126,10 @@ class TrainConfig:
     """episodes of each periodic evaluation (validation episodes)"""
     keep_best: bool = True
     """end with the weights that scored best in the periodic evaluations, not the last ones"""
-    select_by: str = "length"
-    """what picks checkpoints and the best seed on validation episodes, as the mean of the
-    greedy and epsilon = 0.05 results: length (mean episode length, a failure counting the
-    time limit; shorter is better), success (success rate) or return (trained reward)"""
+    select_by: str = "steps"
+    """what picks checkpoints and the best seed on validation episodes (means of the greedy
+    and epsilon = 0.05 results): steps (the fewest steps to success among those within one
+    point of the best success rate), success (success rate) or return (trained reward)"""
     final_eval_episodes: int = 1000
     """validation episodes of the selection evaluation at the end of each run, which picks
     the best seed per mode (reported success rates come from evaluate.py)"""
@@ -235,7 +235,7 @@ FIELD_CHECKS: dict[str, Check] = {
     "eval_interval": int_in(1),
     "eval_episodes": int_in(1),
     "keep_best": boolean,
-    "select_by": one_of(*SELECTION_METRICS),
+    "select_by": one_of(*SELECT_BY),
     "final_eval_episodes": int_in(1),
     "save_freq": int_in(0),
     "output_dir": folder,

@@ -17,7 +17,6 @@ Acting is in :mod:`trainer_acting`, the evaluations and outputs in :mod:`trainer
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import fields
@@ -35,7 +34,7 @@ from rollout import EVAL_EPSILON
 from td_update import FastTDGradient, TransitionBatch
 from train_config import TrainConfig
 from trainer_acting import Rollout, TrainerActing
-from trainer_outputs import TrainerOutputs
+from trainer_outputs import Checkpoint, TrainerOutputs
 
 
 def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndarray | torch.Tensor:
@@ -127,9 +126,7 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
         self.log: list[dict[str, Any]] = []
         self._losses: list[float] = []
         self._mean_qs: list[float] = []
-        self.best_score, self.best_env_steps = -math.inf, 0
-        self.best_selection: dict[str, float] = {}
-        self._best_state = {k: v.clone() for k, v in self.online.state_dict().items()}
+        self.checkpoints: list[Checkpoint] = []  # one per periodic evaluation
         self._episode_rollout: Rollout | None = None  # for train_episode()
         self._evaluation_envs: dict[int, VectorMultiAgentEnv] = {}  # by number of copies
 
@@ -350,7 +347,7 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
         # 7. Log the end, keep the best weights, save.
         self.evaluate_and_log(progress)
         if cfg.keep_best:
-            self.online.load_state_dict(self._best_state)
+            self.online.load_state_dict(self.best_checkpoint().state)
         self.save_models()
         return self.log
 

@@ -1,6 +1,7 @@
 """The evaluations and outputs of :class:`trainer.MultiAgentTrainer`: the periodic
-evaluation on the validation episodes, the best weights so far ("selection"), the training
-log (rows in memory and a CSV file) and the exported TorchScript pair.
+evaluation on the validation episodes, the checkpoints it scores and the best of them
+("selection"), the training log (rows in memory and a CSV file) and the exported
+TorchScript pair.
 
 :class:`TrainerOutputs` is a base class of ``MultiAgentTrainer``; the attributes it reads
 are set by the trainer's ``__init__`` (listed in the class body).
@@ -12,6 +13,7 @@ import csv
 import math
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -20,14 +22,25 @@ import torch
 from models import export_policy
 from multi_agent_env import VectorMultiAgentEnv
 from paired_networks import PairedQNetworks
-from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED, evaluate_policy, selection_score
+from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED, evaluate_policy, select_best
 from train_config import TrainConfig
 
 LOG_FIELDS = (
     "env_steps", "episodes", "updates", "epsilon", "loss", "mean_q", "train_return",
     "train_success", "eval_success_greedy", "eval_success_eps", "eval_return_greedy",
-    "eval_return_eps", "eval_length_greedy", "eval_length_eps",
+    "eval_return_eps", "eval_steps_greedy", "eval_steps_eps",
 )  # fmt: skip
+
+
+@dataclass
+class Checkpoint:
+    """The weights of one periodic evaluation and their results on the validation episodes
+    (:func:`rollout.summarize` dicts, greedy and at epsilon = 0.05)."""
+
+    env_steps: int
+    greedy: dict[str, Any]
+    eps: dict[str, Any]
+    state: dict[str, torch.Tensor]
 
 
 class TrainerOutputs:
@@ -51,10 +64,7 @@ class TrainerOutputs:
     log: list[dict[str, Any]]
     _losses: list[float]
     _mean_qs: list[float]
-    best_score: float
-    best_env_steps: int
-    best_selection: dict[str, float]
-    _best_state: dict[str, torch.Tensor]
+    checkpoints: list[Checkpoint]
     _evaluation_envs: dict[int, VectorMultiAgentEnv]
 
     def evaluate(
@@ -78,20 +88,20 @@ class TrainerOutputs:
         return evaluate_policy(env, self.policy(epsilon), num_episodes, seed=seed)
 
     def evaluate_and_log(self, progress: Callable[[dict[str, Any]], None] | None) -> None:
-        """Evaluate on the validation episodes, remember the best weights ("selection"),
-        append a row to the log and its CSV file."""
+        """Evaluate on the validation episodes, keep the weights with their results as a
+        checkpoint, append a row to the log and its CSV file."""
         episodes = self.cfg.eval_episodes
         greedy = self.evaluation_summary(episodes, 0.0, VALIDATION_SEED)
         eps = self.evaluation_summary(episodes, EVAL_EPSILON, VALIDATION_SEED)
-        selection = {"greedy": greedy["success_rate"], "eps": eps["success_rate"]}
-        selection["score"] = selection_score(greedy, eps, self.cfg.select_by)
-        if selection["score"] > self.best_score:
-            self.best_score, self.best_env_steps = selection["score"], self.env_steps
-            self.best_selection = selection
-            self._best_state = {k: v.clone() for k, v in self.online.state_dict().items()}
+        state = {k: v.clone() for k, v in self.online.state_dict().items()}
+        self.checkpoints.append(Checkpoint(self.env_steps, greedy, eps, state))
 
         def mean(values: Any) -> float:
             return float(np.mean(values)) if len(values) else math.nan
+
+        def steps(summary: dict[str, Any]) -> float:
+            value = summary["mean_steps_to_success"]
+            return math.nan if value is None else value
 
         row = dict(
             env_steps=self.env_steps, episodes=self.episodes, updates=self.updates,
@@ -99,7 +109,7 @@ class TrainerOutputs:
             train_return=mean(self.recent_returns), train_success=mean(self.recent_successes),
             eval_success_greedy=greedy["success_rate"], eval_success_eps=eps["success_rate"],
             eval_return_greedy=greedy["mean_return"], eval_return_eps=eps["mean_return"],
-            eval_length_greedy=greedy["mean_length"], eval_length_eps=eps["mean_length"],
+            eval_steps_greedy=steps(greedy), eval_steps_eps=steps(eps),
         )  # fmt: skip
         self._losses, self._mean_qs = [], []
         self.log.append(row)
@@ -107,6 +117,28 @@ class TrainerOutputs:
             csv.DictWriter(handle, LOG_FIELDS, lineterminator="\n").writerow(row)
         if progress:
             progress(row)
+
+    def best_checkpoint(self) -> Checkpoint | None:
+        """The checkpoint that ``cfg.select_by`` picks (:func:`rollout.select_best`), or None
+        before the first evaluation."""
+        if not self.checkpoints:
+            return None
+        pairs = [(c.greedy, c.eps) for c in self.checkpoints]
+        return self.checkpoints[select_best(pairs, self.cfg.select_by)]
+
+    @property
+    def best_env_steps(self) -> int:
+        """Environment steps at the best checkpoint (0 before the first evaluation)."""
+        best = self.best_checkpoint()
+        return 0 if best is None else best.env_steps
+
+    @property
+    def best_selection(self) -> dict[str, float]:
+        """Validation success rates of the best checkpoint, ``greedy`` and ``eps``."""
+        best = self.best_checkpoint()
+        return (
+            {} if best is None else {c: getattr(best, c)["success_rate"] for c in ("greedy", "eps")}
+        )
 
     @property
     def log_path(self) -> Path:

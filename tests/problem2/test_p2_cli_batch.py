@@ -17,6 +17,7 @@ from pathlib import Path
 import experiments  # the module train.py uses (monkeypatched below)
 import pytest
 from _atomic import remove_stale_temporaries
+from rollout import select_best
 
 from tests.conftest import PROBLEM2, load_problem_module
 
@@ -73,8 +74,17 @@ def test_manifest_describes_the_batch_and_matches_its_files(batch: Path) -> None
             assert hashlib.sha256(data).hexdigest() == run["sha256"][agent]
         selection = json.loads((batch / "training_logs" / f"{name}_selection.json").read_text())
         assert selection["validation_seed"] == 6_000_000 and selection["eps"]["episodes"] == 32
-        assert run["selection"]["score"] == selection["score"]
+        for condition in ("greedy", "eps"):
+            recorded = run["selection"][condition]
+            assert recorded["success_rate"] == selection[condition]["success_rate"]
+            assert (
+                recorded["mean_steps_to_success"] == selection[condition]["mean_steps_to_success"]
+            )
     best = manifest["best"]["full"]
+    seeds = sorted(manifest["runs"])  # full_seed1, full_seed2
+    pairs = [(manifest["runs"][n]["selection"]["greedy"], manifest["runs"][n]["selection"]["eps"])
+             for n in seeds]  # fmt: skip
+    assert best == seeds[select_best(pairs, manifest["hyperparameters"]["select_by"])]
     for agent in "AB":
         assert (models / f"full_agent_{agent}.pt").read_bytes() == (
             models / f"{best}_agent_{agent}.pt"

@@ -31,7 +31,7 @@ from baselines import POLICIES, explorer_policy, oracle_policy, random_policy
 from evaluate import MultiAgentEvaluator
 from models import MESSAGE_INDEX
 from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
-from rollout import EpisodeResults, run_episodes, selection_score, summarize
+from rollout import EpisodeResults, run_episodes, select_best, summarize
 
 from tests.conftest import PROBLEM2
 
@@ -333,8 +333,7 @@ def test_arrivals_count_only_the_steps_of_each_episode() -> None:
     assert not on_target(positions, np.array([4, 2]), target)[1, 3:].any()  # after its end
 
 
-def test_summary_counts_a_failed_episode_at_the_time_limit() -> None:
-    """Two episodes meet after 8 and 12 steps, one fails at the 50-step limit."""
+def test_summary_gives_the_steps_of_the_successful_episodes_only() -> None:
     results = EpisodeResults(
         returns=np.array([9.3, 8.9, -5.0]),
         successes=np.array([True, True, False]),
@@ -343,7 +342,25 @@ def test_summary_counts_a_failed_episode_at_the_time_limit() -> None:
     summary = summarize(results)
     assert summary["success_rate"] == pytest.approx(2 / 3)
     assert summary["mean_steps_to_success"] == pytest.approx(10.0)
-    assert summary["mean_length"] == pytest.approx(70 / 3)
-    faster = summary | {"mean_length": 20.0}
-    assert selection_score(faster, faster, "length") > selection_score(summary, summary, "length")
-    assert selection_score(summary, faster, "success") == pytest.approx(2 / 3)
+    assert summary["mean_return"] == pytest.approx(13.2 / 3)
+
+
+def _pair(success: float, steps: float | None, mean_return: float = 0.0) -> tuple[dict, dict]:
+    summary = {"success_rate": success, "mean_steps_to_success": steps, "mean_return": mean_return}
+    return summary, summary
+
+
+def test_selection_by_steps_takes_the_fastest_of_the_nearly_most_successful() -> None:
+    candidates = [
+        _pair(0.0, None),  # nothing learned yet
+        _pair(0.995, 12.0),  # the most successful
+        _pair(0.985, 11.0),  # one point less: as good, and faster
+        _pair(0.97, 9.0),  # faster still, but 2.5 points less successful
+        _pair(0.985, 11.0),  # equal to index 2: the earlier one stays
+    ]
+    assert select_best(candidates, "steps") == 2
+    assert select_best(candidates, "success") == 1
+    assert select_best([_pair(0.5, 10.0, 3.0), _pair(0.5, 10.0, 4.0)], "return") == 1
+    assert select_best([_pair(0.0, None), _pair(0.0, None)], "steps") == 0
+    with pytest.raises(ValueError, match="select_by"):
+        select_best(candidates, "luck")

@@ -12,6 +12,7 @@ import pytest
 import torch
 from models import export_policy, load_policy, observation_mask
 from multi_agent_env import MultiAgentEnv
+from rollout import VALIDATION_SEED, select_best
 from train_config import TrainConfig
 
 from tests.conftest import load_problem_module
@@ -143,16 +144,9 @@ def test_train_writes_models_and_appends_the_log_as_it_goes(tmp_path: Path) -> N
         assert (tmp_path / "out" / "agent_models" / f"comm_seed5_agent_{agent}.pt").is_file()
 
 
-@pytest.mark.parametrize(
-    ("select_by", "columns", "sign"),
-    [
-        ("return", ("eval_return_greedy", "eval_return_eps"), 1.0),
-        ("length", ("eval_length_greedy", "eval_length_eps"), -1.0),
-        ("success", ("eval_success_greedy", "eval_success_eps"), 1.0),
-    ],
-)
-def test_selection_keeps_the_checkpoint_with_the_best_validation_score(
-    tmp_path: Path, select_by: str, columns: tuple[str, str], sign: float
+@pytest.mark.parametrize("select_by", ["steps", "success", "return"])
+def test_training_ends_with_the_checkpoint_that_select_by_picks_from_the_log(
+    tmp_path: Path, select_by: str
 ) -> None:
     cfg = TrainConfig(
         mode="full", total_steps=2048, num_envs=16, learning_starts=256, batch_size=32,
@@ -160,10 +154,24 @@ def test_selection_keeps_the_checkpoint_with_the_best_validation_score(
     )  # fmt: skip
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
     log = trainer.train()
-    scores = [sign * (row[columns[0]] + row[columns[1]]) / 2 for row in log]
-    best = int(np.argmax(scores))  # the first of equal scores, as training keeps it
-    assert trainer.best_selection["score"] == pytest.approx(scores[best])
-    assert trainer.best_env_steps == log[best]["env_steps"]
+
+    def summary(row: dict, condition: str) -> dict:
+        steps = row[f"eval_steps_{condition}"]
+        return {
+            "success_rate": row[f"eval_success_{condition}"],
+            "mean_steps_to_success": None if np.isnan(steps) else steps,
+            "mean_return": row[f"eval_return_{condition}"],
+        }
+
+    best = log[select_best([(summary(r, "greedy"), summary(r, "eps")) for r in log], select_by)]
+    assert trainer.best_env_steps == best["env_steps"]
+    assert trainer.best_selection == {
+        "greedy": best["eval_success_greedy"], "eps": best["eval_success_eps"]
+    }  # fmt: skip
+    # The weights the run ends with are that checkpoint's: they replay its validation result.
+    again = trainer.evaluation_summary(cfg.eval_episodes, 0.0, VALIDATION_SEED)
+    assert again["success_rate"] == best["eval_success_greedy"]
+    assert again["mean_return"] == pytest.approx(best["eval_return_greedy"])
 
 
 def test_select_by_is_refused_outside_its_choices() -> None:
