@@ -67,7 +67,7 @@ RECIPE: dict[str, Any] = dict(
 )  # fmt: skip
 STUDY_POOL_SIZES = int_in(1, MAX_POOL_SIZE)  # a pool of maps: train.py's 0 (one map) is not one
 CONDITIONS = {"greedy": 0.0, "eps": EVAL_EPSILON}
-HEURISTICS = ("explorer", "sweep_explorer", "random", "oracle")
+HEURISTICS = ("explorer", "sweep_explorer", "beacon_explorer", "random", "oracle")
 DEPARTURES = {
     "share_weights": "parameter sharing: both agents act with one set of weights (summed "
     "gradient) instead of two independent learners",
@@ -190,7 +190,7 @@ def plot(path: Path, results: dict) -> None:
                         color="black", capsize=3)  # fmt: skip
             ax.plot([i + offset] * len(stats["per_seed"]), stats["per_seed"], "k.", ms=3)
     heuristics = results["held_out"]["heuristics"]
-    for name, style in (("explorer", ":"), ("sweep_explorer", "--")):
+    for name, style in (("explorer", ":"), ("sweep_explorer", "--"), ("beacon_explorer", "-.")):
         ax.axhline(heuristics[name]["mean"], color="grey", ls=style, label=name.replace("_", " "))
     ax.set_xticks(range(len(modes)), list(modes))
     ax.set_ylabel("success on 40 held-out maps")
