@@ -11,39 +11,24 @@ draw a new map from a pool at every episode start (``map_pool``).
 from __future__ import annotations
 
 import numpy as np
-from grid_maps import (
-    ACTION_DELTAS,
-    FREE,
-    NUM_ACTIONS,
-    OFF_GRID,
-    TARGET,
-    check_grid,
-    check_grid_stack,
-    generate_map,
+from env_inputs import (
+    check_action_values,
+    check_cell_array,
+    check_choice,
+    check_joint_actions,
+    check_messages,
+    check_obs_window,
+    check_seed,
+    choose_maps,
+    positive_int,
 )
+from grid_maps import ACTION_DELTAS, FREE, OFF_GRID, TARGET
 
 BOTH_ON_TARGET_REWARD = 10.0
 ARRIVAL_REWARD = 2.0
 STEP_REWARD = -0.1
 REWARD_MODES = ("per_step", "arrival")  # the first is the default: the assignment's table
 MAX_TABULATED_CELLS = 4096  # padded cells; the (P, P) float32 table is then ≤ 64 MiB
-
-
-def _is_integer(value: object) -> bool:
-    return isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
-
-
-def _positive_int(value: object, name: str) -> int:
-    if not _is_integer(value) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
-def _check_seed(seed: object, name: str = "seed") -> int | None:
-    """``None`` or a non-negative integer (what NumPy's generators accept)."""
-    if seed is not None and (not _is_integer(seed) or seed < 0):
-        raise ValueError(f"{name} must be None or a non-negative integer, got {seed!r}")
-    return None if seed is None else int(seed)
 
 
 class VectorMultiAgentEnv:
@@ -88,30 +73,15 @@ class VectorMultiAgentEnv:
         map_pool: np.ndarray | None = None,
         track_coverage: bool = False,
     ) -> None:
-        self.n_envs = _positive_int(n_envs, "n_envs")
-        if not _is_integer(obs_window) or obs_window < 3 or obs_window % 2 == 0:
-            raise ValueError(f"obs_window must be an odd integer >= 3, got {obs_window!r}")
-        self.obs_window = int(obs_window)
-        self.max_steps = _positive_int(max_steps, "max_steps")
-        if reward_mode not in REWARD_MODES:
-            raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {reward_mode!r}")
-        self.reward_mode = reward_mode
-        seed = _check_seed(seed)
+        self.n_envs = positive_int(n_envs, "n_envs")
+        self.obs_window = check_obs_window(obs_window)
+        self.max_steps = positive_int(max_steps, "max_steps")
+        self.reward_mode = check_choice(reward_mode, REWARD_MODES, "reward_mode")
+        seed = check_seed(seed)
         self.auto_reset = bool(auto_reset)
         self.track_coverage = bool(track_coverage)
-        if sum(option is not None for option in (grid, grids, map_pool)) > 1:
-            raise ValueError("give at most one of grid, grids and map_pool")
+        self.grids, self.grid = choose_maps(self.n_envs, grid_size, seed, grid, grids, map_pool)
         self._draw_maps = map_pool is not None
-        if grids is not None or map_pool is not None:
-            stacked = grids if grids is not None else map_pool
-            self.grids = check_grid_stack(stacked, "grids" if grids is not None else "map_pool")
-            if grids is not None and len(self.grids) != self.n_envs:
-                raise ValueError(f"grids must hold n_envs = {self.n_envs} maps, got {len(grids)}")
-            self.grid = self.grids[0] if len(self.grids) == 1 else None  # else: map_indices
-        else:
-            self.grid = generate_map(grid_size, seed) if grid is None else check_grid(grid)
-            self.grid.flags.writeable = False
-            self.grids = self.grid[None]
         self.grid_size: tuple[int, int] = (int(self.grids.shape[1]), int(self.grids.shape[2]))
         self.obs_dim = self.obs_window**2 + 2
         self._rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
@@ -183,12 +153,7 @@ class VectorMultiAgentEnv:
 
     def _check_cells(self, positions: object, name: str) -> np.ndarray:
         """``positions`` (N, 2, 2) integer (row, col) cells inside the grid, not obstacles."""
-        positions = np.asarray(positions)
-        if positions.shape != (self.n_envs, 2, 2) or positions.dtype.kind not in "iu":
-            raise ValueError(
-                f"{name} must be integers of shape ({self.n_envs}, 2, 2), "
-                f"got {positions.dtype} {positions.shape}"
-            )
+        positions = check_cell_array(positions, self.n_envs, name)
         if not self.is_passable(positions[..., 0], positions[..., 1]).all():
             raise ValueError(
                 f"{name} must be cells inside the {self.grid_size[0]}x{self.grid_size[1]} grid "
@@ -268,9 +233,7 @@ class VectorMultiAgentEnv:
     def next_cells(self, rows: np.ndarray, cols: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """Cells (..., 2) reached from passable cells ``(rows, cols)`` by ``actions`` (same
         shape, ints 0..4); a move into a wall or an obstacle stays in place."""
-        actions = np.asarray(actions)
-        if actions.dtype.kind not in "iu" or (actions < 0).any() or (actions >= NUM_ACTIONS).any():
-            raise ValueError(f"actions must be integers in 0..{NUM_ACTIONS - 1}, got {actions}")
+        actions = check_action_values(actions)
         if not self.is_passable(rows, cols).all():
             raise ValueError("cells must be inside the grid and not obstacles")
         flat = self._to_flat(rows, cols) + self._bases_for(np.asarray(rows))
@@ -351,7 +314,7 @@ class VectorMultiAgentEnv:
         grid, the target included, but not both on the target. An agent starting on the
         target earns no arrival bonus for it.
         """
-        if _check_seed(seed) is not None:
+        if check_seed(seed) is not None:
             self._rng = np.random.default_rng(seed)
         every_copy = np.arange(self.n_envs)
         self._draw_maps_for(every_copy)
@@ -365,30 +328,7 @@ class VectorMultiAgentEnv:
 
     def check_actions(self, actions: np.ndarray) -> np.ndarray:
         """``actions`` as an (N, 2) integer array in 0..4, or ValueError."""
-        actions = np.asarray(actions)
-        if actions.shape != (self.n_envs, 2):
-            raise ValueError(f"actions must have shape ({self.n_envs}, 2), got {actions.shape}")
-        if actions.dtype.kind not in "iu":
-            raise ValueError(f"actions must be integers 0..4, got dtype {actions.dtype}")
-        if actions.min() < 0 or actions.max() >= NUM_ACTIONS:
-            bad = np.unique(actions[(actions < 0) | (actions >= NUM_ACTIONS)])
-            raise ValueError(f"actions must be in 0..4 (Up, Down, Left, Right, Stay), got {bad}")
-        return actions
-
-    def _check_messages(self, messages: np.ndarray) -> np.ndarray:
-        """Finite numbers, clipped into [0, 1] (the channel is bounded); NaN, inf or a
-        non-number raises ValueError."""
-        messages = np.asarray(messages)
-        if messages.shape != (self.n_envs, 2) or messages.dtype.kind not in "fiub":
-            raise ValueError(
-                f"messages must be numbers of shape ({self.n_envs}, 2), "
-                f"got {messages.dtype} {messages.shape}"
-            )
-        if not np.isfinite(messages).all():
-            raise ValueError(
-                f"messages must be finite numbers (clipped into [0, 1]), got {messages}"
-            )
-        return np.clip(messages, 0.0, 1.0).astype(np.float32, copy=False)  # clip made a copy
+        return check_joint_actions(actions, self.n_envs)
 
     def step(
         self, actions: np.ndarray, messages: np.ndarray
@@ -406,7 +346,7 @@ class VectorMultiAgentEnv:
         Without ``auto_reset``, stepping after a copy finished raises ValueError.
         """
         actions = self.check_actions(actions)
-        messages = self._check_messages(messages)
+        messages = check_messages(messages, self.n_envs)
         if self._finished.any():
             raise ValueError(
                 f"episode over in copies {np.flatnonzero(self._finished)}; "
