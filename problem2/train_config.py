@@ -79,7 +79,7 @@ class TrainConfig:
     """if positive, train for this many finished episodes instead of --total_steps"""
     num_envs: int = 64
     """parallel environments that collect experience"""
-    batch_size: int = 256
+    batch_size: int = 192
     """transitions per gradient update"""
     lr: float = 5e-4
     """Adam learning rate at the start (finite, > 0)"""
@@ -101,9 +101,12 @@ class TrainConfig:
     """with --epsilon_decay 0: fraction (0, 1] of the run over which epsilon falls linearly"""
     hidden_dim: int = 64
     """units of the hidden layer"""
-    target_update: int = 100
+    target_update: int = 0
     """gradient updates (not episodes, not env steps) between hard copies of the online
-    into the target networks"""
+    into the target networks, the skeleton's rule; 0 = a soft update at --target_tau"""
+    target_tau: float = 0.005
+    """with --target_update 0: after every gradient update each target network moves this
+    fraction (0, 1] of the way to its online network"""
     buffer_size: int = 100_000
     """replay capacity in joint transitions (at least batch_size)"""
     learning_starts: int = 5_000
@@ -223,7 +226,8 @@ FIELD_CHECKS: dict[str, Check] = {
     "epsilon_decay": epsilon_decay,
     "epsilon_fraction": number_in(0.0, 1.0, low_open=True),
     "hidden_dim": int_in(1),
-    "target_update": int_in(1),
+    "target_update": int_in(0),
+    "target_tau": number_in(0.0, 1.0, low_open=True),
     "buffer_size": int_in(1),
     "learning_starts": int_in(0),
     "updates_per_step": int_in(1),

@@ -269,15 +269,21 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
     # ------------------------------------------------------------------ schedules
     def update_and_sync_target(self) -> None:
         """One gradient update; with PER, the priorities it measured (one per joint
-        transition: the larger |δ| of the two agents); every ``target_update`` updates a
-        hard copy of the online into the target networks."""
-        self.update_networks(self.cfg.batch_size)
-        if self.cfg.prioritized:
+        transition: the larger |δ| of the two agents); then the target networks: with
+        ``target_update`` 0 a soft update θ⁻ ← θ⁻ + τ (θ − θ⁻), otherwise a hard copy of
+        the online networks every ``target_update`` updates."""
+        cfg, updates_before = self.cfg, self.updates
+        self.update_networks(cfg.batch_size)
+        if self.updates == updates_before:  # fewer transitions than a batch: no update
+            return
+        if cfg.prioritized:
             priorities = self.last_td_errors.abs().max(dim=0).values.numpy() + 1e-6
             self.replay_buffer.update_priorities(self.last_indices, priorities)
-        if self.updates % self.cfg.target_update == 0:
-            with torch.no_grad():  # = load_state_dict(online.state_dict()): one parameter
-                self.target.flat.copy_(self.online.flat)
+        with torch.no_grad():  # both networks' weights are one flat parameter each
+            if cfg.target_update == 0:
+                self.target.flat.lerp_(self.online.flat, cfg.target_tau)
+            elif self.updates % cfg.target_update == 0:
+                self.target.flat.copy_(self.online.flat)  # = load_state_dict(...)
 
     def progress(self) -> float:
         """Fraction of the training budget spent, in [0, 1]."""
@@ -338,7 +344,7 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
                 update_credit += cfg.updates_per_step * rollout.env.n_envs / cfg.num_envs
             while update_credit >= 1.0:
                 update_credit -= 1.0
-                # 5. Target sync: a hard copy every target_update gradient updates.
+                # 5. Target networks: a soft update (or a hard copy every target_update).
                 self.update_and_sync_target()
             # 6. Schedules.
             self.epsilon = self.next_epsilon(n_finished)

@@ -73,6 +73,66 @@ def test_epsilon_decay_outside_its_range_is_refused_with_its_meaning() -> None:
         TrainConfig(epsilon_decay=1.5).validate()
 
 
+def filled_trainer(**settings: object) -> train.MultiAgentTrainer:
+    """A full-mode trainer with 640 transitions in its buffer and no update yet."""
+    cfg = TrainConfig(
+        mode="full", total_steps=640, num_envs=64, batch_size=32, learning_starts=10**9,
+        eval_interval=10**9, eval_episodes=4, keep_best=False, **settings,
+    )  # fmt: skip
+    trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
+    trainer.train()
+    return trainer
+
+
+def test_soft_target_update_moves_the_target_tau_of_the_way_after_each_update(
+    tmp_path: Path,
+) -> None:
+    trainer = filled_trainer(target_tau=0.25, output_dir=str(tmp_path))
+    assert trainer.cfg.target_update == 0  # the default: soft updates
+    for _ in range(3):
+        before = trainer.target.flat.detach().clone()
+        trainer.update_and_sync_target()
+        online = trainer.online.flat.detach()
+        assert not torch.equal(online, before)
+        assert torch.equal(trainer.target.flat.detach(), before.lerp(online, 0.25))
+
+
+def test_target_update_makes_hard_copies_every_that_many_updates(tmp_path: Path) -> None:
+    trainer = filled_trainer(target_update=3, output_dir=str(tmp_path))
+    start = trainer.target.flat.detach().clone()
+    for _ in range(2):
+        trainer.update_and_sync_target()
+        assert torch.equal(trainer.target.flat.detach(), start)
+    trainer.update_and_sync_target()
+    assert trainer.updates == 3
+    assert torch.equal(trainer.target.flat.detach(), trainer.online.flat.detach())
+
+
+def test_the_skeletons_target_update_means_hard_copies() -> None:
+    trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), skeleton_args(target_update=7))
+    rng = np.random.default_rng(0)
+    for _ in range(32):  # one batch of the skeleton's size, pushed by hand
+        state_a, state_b, next_a, next_b = rng.random((4, 11), dtype=np.float32)
+        trainer.replay_buffer.push(state_a, state_b, 0, 1, 0.5, 0.5, -0.1, next_a, next_b, False)
+    assert trainer.cfg.target_update == 7
+    start = trainer.target.flat.detach().clone()
+    for _ in range(6):
+        trainer.update_and_sync_target()
+    assert torch.equal(trainer.target.flat.detach(), start)
+    trainer.update_and_sync_target()
+    assert torch.equal(trainer.target.flat.detach(), trainer.online.flat.detach())
+
+
+def test_no_target_update_while_the_buffer_holds_less_than_a_batch(tmp_path: Path) -> None:
+    cfg = TrainConfig(mode="full", batch_size=32, output_dir=str(tmp_path))
+    trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
+    with torch.no_grad():
+        trainer.target.flat.add_(1.0)  # a target that differs from the online networks
+    target = trainer.target.flat.detach().clone()
+    trainer.update_and_sync_target()
+    assert trainer.updates == 0 and torch.equal(trainer.target.flat.detach(), target)
+
+
 @pytest.mark.parametrize("mode", ["independent", "comm", "full"])
 def test_transitions_pushed_by_hand_train_in_every_mode(mode: str) -> None:
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), skeleton_args(mode=mode))
