@@ -5,6 +5,7 @@ process per repeat (checkouts are interleaved so that a busy machine slows all a
 
 * ``update independent`` / ``update full``: ms per ``update_networks(256)`` on a buffer
   filled by 6 400 env steps of the default map (``full`` learns its messages with DIAL);
+  ``update full, default B``: the same at the checkout's default batch size;
 * ``training``: env-steps/s of ``train()`` at the checkout's default settings for 40 000
   env steps, evaluation switched off;
 * with ``--end_to_end``: wall seconds of ``python train.py --mode full --num_seeds 1
@@ -70,6 +71,11 @@ def measure(repo: Path, updates: int) -> dict[str, float]:
             for _ in range(updates):
                 trainer.update_networks(BATCH_SIZE)
             results[f"update {mode} (ms)"] = (time.perf_counter() - start) / updates * 1e3
+        default_batch = TrainConfig().batch_size  # trainer: the full-mode one, still filled
+        start = time.perf_counter()
+        for _ in range(updates):
+            trainer.update_networks(default_batch)
+        results["update full, default B (ms)"] = (time.perf_counter() - start) / updates * 1e3
 
         trainer = trainer_for("full", total_steps=TRAIN_STEPS, eval_interval=10**9)
         start = time.perf_counter()

@@ -103,7 +103,8 @@ class TrainConfig:
     """units of the hidden layer"""
     target_update: int = 0
     """gradient updates (not episodes, not env steps) between hard copies of the online
-    into the target networks, the skeleton's rule; 0 = a soft update at --target_tau"""
+    networks into the target networks, the skeleton's rule; 0 = a soft update at
+    --target_tau"""
     target_tau: float = 0.005
     """with --target_update 0: after every gradient update each target network moves this
     fraction (0, 1] of the way to its online network"""

@@ -65,7 +65,7 @@ BAD_SETTINGS = [
     (["--epsilon_fraction", "0"], "0"),
     (["--hidden_dim", "0"], "0"),
     (["--target_update", "-1"], "-1"),
-    (["--target_tau", "0"], "0"),
+    (["--target_tau", "-0.25"], "-0.25"),
     (["--target_tau", "1.5"], "1.5"),
     (["--buffer_size", "10"], "10"),
     (["--learning_starts", "0"], "0"),
@@ -127,6 +127,8 @@ def test_list_flags_accept_spaces_and_commas_and_every_flag_its_dashed_spelling(
     assert parse_config(["--grid_size", "8,10"]).grid_shape() == (8, 10)
     assert parse_config(["--epsilon-decay", "0.995"]).epsilon_decay == 0.995
     assert parse_config(["--epsilon-fraction", "0.3"]).epsilon_fraction == 0.3
+    assert parse_config(["--target-tau", "0.02"]).target_tau == 0.02
+    assert parse_config(["--target_update", "250"]).target_update == 250
     assert parse_config(["--no-keep-best"]).keep_best is False
 
 

@@ -74,7 +74,7 @@ def test_epsilon_decay_outside_its_range_is_refused_with_its_meaning() -> None:
 
 
 def filled_trainer(**settings: object) -> train.MultiAgentTrainer:
-    """A full-mode trainer with 640 transitions in its buffer and no update yet."""
+    """A full-mode trainer whose buffer holds more than a batch, with no update yet."""
     cfg = TrainConfig(
         mode="full", total_steps=640, num_envs=64, batch_size=32, learning_starts=10**9,
         eval_interval=10**9, eval_episodes=4, keep_best=False, **settings,
@@ -123,8 +123,14 @@ def test_the_skeletons_target_update_means_hard_copies() -> None:
     assert torch.equal(trainer.target.flat.detach(), trainer.online.flat.detach())
 
 
-def test_no_target_update_while_the_buffer_holds_less_than_a_batch(tmp_path: Path) -> None:
-    cfg = TrainConfig(mode="full", batch_size=32, output_dir=str(tmp_path))
+@pytest.mark.parametrize(("target_update", "prioritized"), [(0, False), (5, False), (0, True)])
+def test_no_target_update_while_the_buffer_holds_less_than_a_batch(
+    tmp_path: Path, target_update: int, prioritized: bool
+) -> None:
+    cfg = TrainConfig(
+        mode="full", batch_size=32, target_update=target_update, prioritized=prioritized,
+        output_dir=str(tmp_path),
+    )  # fmt: skip
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
     with torch.no_grad():
         trainer.target.flat.add_(1.0)  # a target that differs from the online networks
