@@ -29,6 +29,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 HERE = Path(__file__).resolve().parent.parent
 BATCH_SIZE = 256
@@ -67,21 +68,26 @@ def measure(repo: Path, updates: int) -> dict[str, float]:
             trainer.train()
             for _ in range(20):  # warm up
                 trainer.update_networks(BATCH_SIZE)
-            start = time.perf_counter()
-            for _ in range(updates):
-                trainer.update_networks(BATCH_SIZE)
-            results[f"update {mode} (ms)"] = (time.perf_counter() - start) / updates * 1e3
-        default_batch = TrainConfig().batch_size  # trainer: the full-mode one, still filled
-        start = time.perf_counter()
-        for _ in range(updates):
-            trainer.update_networks(default_batch)
-        results["update full, default B (ms)"] = (time.perf_counter() - start) / updates * 1e3
+            results[f"update {mode} (ms)"] = ms_per_update(trainer, BATCH_SIZE, updates)
+            if mode == "full":
+                default_batch = TrainConfig().batch_size
+                results["update full, default B (ms)"] = ms_per_update(
+                    trainer, default_batch, updates
+                )
 
         trainer = trainer_for("full", total_steps=TRAIN_STEPS, eval_interval=10**9)
         start = time.perf_counter()
         trainer.train()
         results["training (env-steps/s)"] = TRAIN_STEPS / (time.perf_counter() - start)
     return results
+
+
+def ms_per_update(trainer: Any, batch_size: int, updates: int) -> float:
+    """Milliseconds per ``trainer.update_networks(batch_size)``, over ``updates`` calls."""
+    start = time.perf_counter()
+    for _ in range(updates):
+        trainer.update_networks(batch_size)
+    return (time.perf_counter() - start) / updates * 1e3
 
 
 def end_to_end(repo: Path) -> float:

@@ -73,6 +73,27 @@ def test_epsilon_decay_outside_its_range_is_refused_with_its_meaning() -> None:
         TrainConfig(epsilon_decay=1.5).validate()
 
 
+def push_by_hand(trainer: train.MultiAgentTrainer, count: int, rng: np.random.Generator) -> None:
+    """Push ``count`` random one-step transitions with the skeleton's ten fields."""
+    for _ in range(count):
+        state_a, state_b, next_a, next_b = rng.random((4, 11), dtype=np.float32)
+        trainer.replay_buffer.push(
+            state_a, state_b, int(rng.integers(5)), int(rng.integers(5)), rng.random(),
+            rng.random(), -0.1, next_a, next_b, False,
+        )  # fmt: skip
+
+
+def assert_hard_copy_after(trainer: train.MultiAgentTrainer, period: int) -> None:
+    """The target stays as it is for ``period`` - 1 updates, then equals the online."""
+    start = trainer.target.flat.detach().clone()
+    for _ in range(period - 1):
+        trainer.update_and_sync_target()
+        assert torch.equal(trainer.target.flat.detach(), start)
+    trainer.update_and_sync_target()
+    assert trainer.updates == period
+    assert torch.equal(trainer.target.flat.detach(), trainer.online.flat.detach())
+
+
 def filled_trainer(**settings: object) -> train.MultiAgentTrainer:
     """A full-mode trainer whose buffer holds more than a batch, with no update yet."""
     cfg = TrainConfig(
@@ -98,29 +119,14 @@ def test_soft_target_update_moves_the_target_tau_of_the_way_after_each_update(
 
 
 def test_target_update_makes_hard_copies_every_that_many_updates(tmp_path: Path) -> None:
-    trainer = filled_trainer(target_update=3, output_dir=str(tmp_path))
-    start = trainer.target.flat.detach().clone()
-    for _ in range(2):
-        trainer.update_and_sync_target()
-        assert torch.equal(trainer.target.flat.detach(), start)
-    trainer.update_and_sync_target()
-    assert trainer.updates == 3
-    assert torch.equal(trainer.target.flat.detach(), trainer.online.flat.detach())
+    assert_hard_copy_after(filled_trainer(target_update=3, output_dir=str(tmp_path)), 3)
 
 
 def test_the_skeletons_target_update_means_hard_copies() -> None:
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), skeleton_args(target_update=7))
-    rng = np.random.default_rng(0)
-    for _ in range(32):  # one batch of the skeleton's size, pushed by hand
-        state_a, state_b, next_a, next_b = rng.random((4, 11), dtype=np.float32)
-        trainer.replay_buffer.push(state_a, state_b, 0, 1, 0.5, 0.5, -0.1, next_a, next_b, False)
+    push_by_hand(trainer, 32, np.random.default_rng(0))  # one batch of the skeleton's size
     assert trainer.cfg.target_update == 7
-    start = trainer.target.flat.detach().clone()
-    for _ in range(6):
-        trainer.update_and_sync_target()
-    assert torch.equal(trainer.target.flat.detach(), start)
-    trainer.update_and_sync_target()
-    assert torch.equal(trainer.target.flat.detach(), trainer.online.flat.detach())
+    assert_hard_copy_after(trainer, 7)
 
 
 @pytest.mark.parametrize(("target_update", "prioritized"), [(0, False), (5, False), (0, True)])
@@ -143,18 +149,9 @@ def test_no_target_update_while_the_buffer_holds_less_than_a_batch(
 def test_transitions_pushed_by_hand_train_in_every_mode(mode: str) -> None:
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), skeleton_args(mode=mode))
     rng = np.random.default_rng(0)
-
-    def push(count: int) -> None:
-        for _ in range(count):
-            state_a, state_b, next_a, next_b = rng.random((4, 11), dtype=np.float32)
-            trainer.replay_buffer.push(
-                state_a, state_b, int(rng.integers(5)), int(rng.integers(5)), rng.random(),
-                rng.random(), -0.1, next_a, next_b, False,
-            )  # fmt: skip
-
-    push(31)
+    push_by_hand(trainer, 31, rng)
     assert trainer.update_networks(32) == 0.0 and trainer.updates == 0
-    push(1)
+    push_by_hand(trainer, 1, rng)
     before = trainer.online.flat.detach().clone()
     loss = trainer.update_networks(32)
     assert type(loss) is float and loss > 0 and trainer.updates == 1
