@@ -128,12 +128,18 @@ DECOMPOSITION = {
     "reaching it (overlaps the two kinds above)",
     "stay_on_target_share": "share of the steps begun by an agent on the target on which it is "
     "still there after the step (all episodes)",
+    "stay_share_more_staying": "the same share for each agent alone: the larger of the two "
+    "(the agent that waits on the target more); both agents must have begun a step on it",
+    "stay_share_less_staying": "the smaller of the two agents' own shares (the agent that "
+    "waits less)",
 }
 
 
 def failure_decomposition(results: EpisodeResults, target: tuple[int, int]) -> dict:
     """Shares of the failed episodes by ``DECOMPOSITION`` (None if none failed) and the share
-    of on-target steps on which the agent stays. Needs recorded episodes."""
+    of on-target steps on which the agent stays, pooled and per agent (the larger and the
+    smaller of the two; None unless both agents began a step on the target). Needs recorded
+    episodes."""
     if results.trajectories is None:
         raise ValueError("failure_decomposition needs recorded episodes (record=True)")
     positions = results.trajectories["positions"]  # (E, T + 1, 2, 2)
@@ -145,6 +151,9 @@ def failure_decomposition(results: EpisodeResults, target: tuple[int, int]) -> d
     began_on = on[:, :-1] & taken  # steps begun on the target
     left = (began_on & ~on[:, 1:]).any(axis=(1, 2))
     count = int(failed.sum())
+    began_by_agent = began_on.sum(axis=(0, 1))  # (2,)
+    stays_by_agent = (began_on & on[:, 1:]).sum(axis=(0, 1)) / np.maximum(began_by_agent, 1)
+    both_began = bool(began_by_agent.all())
 
     def share(kind: np.ndarray) -> float | None:
         return float((kind & failed).sum() / count) if count else None
@@ -157,5 +166,7 @@ def failure_decomposition(results: EpisodeResults, target: tuple[int, int]) -> d
         "stay_on_target_share": float((began_on & on[:, 1:]).sum() / began_on.sum())
         if began_on.any()
         else None,
+        "stay_share_more_staying": float(stays_by_agent.max()) if both_began else None,
+        "stay_share_less_staying": float(stays_by_agent.min()) if both_began else None,
         "steps_begun_on_target": int(began_on.sum()),
     }

@@ -240,7 +240,14 @@ def intervention_section(communication: dict) -> list[str]:
 
 def decomposition_section(performance: dict) -> list[str]:
     main = performance["experiments"].get("main") or next(iter(performance["experiments"].values()))
-    keys = ("navigation", "timing", "reached_and_left", "stay_on_target_share")
+    keys = (
+        "navigation",
+        "timing",
+        "reached_and_left",
+        "stay_on_target_share",
+        "stay_share_more_staying",
+        "stay_share_less_staying",
+    )
     rows = [
         [mode, condition, f"{1 - entry[condition]['success_rate']['mean']:.3f}"]
         + [_stat(entry[condition]["failure_decomposition"][key]) for key in keys]

@@ -296,6 +296,23 @@ def test_failure_decomposition_on_hand_built_episodes() -> None:
     # steps begun on the target: 20 (episode 2) + 5 + 1 (episode 3) + 40 (success); stays: 64
     assert shares["steps_begun_on_target"] == 66
     assert shares["stay_on_target_share"] == pytest.approx(64 / 66)
+    # by agent: A began 20 + 5 + 20 steps on the target and stayed 44; B began 1 + 20, stayed 20
+    assert shares["stay_share_more_staying"] == pytest.approx(44 / 45)
+    assert shares["stay_share_less_staying"] == pytest.approx(20 / 21)
+
+
+def test_stay_shares_by_agent_need_both_agents_on_the_target() -> None:
+    target, horizon = (5, 5), 20
+    passing = [(5, 4), target] * (horizon // 2) + [(5, 4)]  # on the target every other step
+    results = _episodes([[target] * (horizon + 1)], [passing], [False])
+    shares = failure_decomposition(results, target)
+    assert shares["stay_share_more_staying"] == pytest.approx(1.0)  # A waits
+    assert shares["stay_share_less_staying"] == pytest.approx(0.0)  # B passes through
+    alone = failure_decomposition(
+        _episodes([[target] * (horizon + 1)], [[(0, 0)] * 21], [False]), target
+    )
+    assert alone["stay_on_target_share"] == pytest.approx(1.0)
+    assert alone["stay_share_more_staying"] is None and alone["stay_share_less_staying"] is None
 
 
 def test_mutual_information_of_known_distributions() -> None:

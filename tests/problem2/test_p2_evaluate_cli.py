@@ -184,6 +184,8 @@ def test_interventions_measures_and_decomposition_are_written(
         "timing",
         "reached_and_left",
         "stay_on_target_share",
+        "stay_share_more_staying",
+        "stay_share_less_staying",
     }
     rows = (output / "interventions.csv").read_text(encoding="utf-8").splitlines()
     assert rows[0].startswith("experiment,mode,channel") and len(rows) > 20
