@@ -3,9 +3,10 @@
 For each checkout given with ``--repo`` (default: this one) it measures, in a fresh
 process per repeat (checkouts are interleaved so that a busy machine slows all alike):
 
-* ``update independent`` / ``update full``: ms per ``update_networks(256)`` on a buffer
-  filled by 6 400 env steps of the default map (``full`` learns its messages with DIAL);
-  ``update full, default B``: the same at the checkout's default batch size;
+* ``update independent`` / ``update full``: ms per ``update_networks(256)`` of networks
+  with 64 hidden units (the same work in every checkout) on a buffer filled by 6 400 env
+  steps of the default map (``full`` learns its messages with DIAL);
+  ``update full, defaults``: the same at the checkout's default batch size and hidden units;
 * ``training``: env-steps/s of ``train()`` at the checkout's default settings for 40 000
   env steps, evaluation switched off;
 * with ``--end_to_end``: wall seconds of ``python train.py --mode full --num_seeds 1
@@ -33,6 +34,7 @@ from typing import Any
 
 HERE = Path(__file__).resolve().parent.parent
 BATCH_SIZE = 256
+HIDDEN_DIM = 64
 FILL_STEPS = 6_400
 TRAIN_STEPS = 40_000
 
@@ -57,23 +59,26 @@ def measure(repo: Path, updates: int) -> dict[str, float]:
             cfg = TrainConfig(**{k: v for k, v in settings.items() if k in known})
             return MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
 
-        for mode in ("independent", "full"):
+        def filled(mode: str, **settings: object) -> MultiAgentTrainer:
             trainer = trainer_for(
                 mode,
                 total_steps=FILL_STEPS,
                 learning_starts=10**9,
                 eval_interval=10**9,
                 keep_best=False,
+                **settings,
             )
             trainer.train()
             for _ in range(20):  # warm up
                 trainer.update_networks(BATCH_SIZE)
+            return trainer
+
+        for mode in ("independent", "full"):
+            trainer = filled(mode, hidden_dim=HIDDEN_DIM)
             results[f"update {mode} (ms)"] = ms_per_update(trainer, BATCH_SIZE, updates)
-            if mode == "full":
-                default_batch = TrainConfig().batch_size
-                results["update full, default B (ms)"] = ms_per_update(
-                    trainer, default_batch, updates
-                )
+        results["update full, defaults (ms)"] = ms_per_update(
+            filled("full"), TrainConfig().batch_size, updates
+        )
 
         trainer = trainer_for("full", total_steps=TRAIN_STEPS, eval_interval=10**9)
         start = time.perf_counter()

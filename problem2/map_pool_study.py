@@ -62,8 +62,8 @@ STUDY_DIR = Path(__file__).resolve().parent / "results" / "studies" / "map_pool"
 RECIPE: dict[str, Any] = dict(
     map_pool=2000, validation_maps=200, share_weights=True, coverage_bonus=0.05,
     on_target_bonus=0.1, n_step=3, gamma=0.95, lr=2.5e-4, target_update=1000, batch_size=256,
-    total_steps=1_000_000, select_by="success", epsilon_fraction=0.3, lr_end_factor=0.1,
-    eval_interval=50_000, eval_episodes=500, seeds=[0, 1, 2, 3, 4],
+    hidden_dim=64, total_steps=1_000_000, select_by="success", epsilon_fraction=0.3,
+    lr_end_factor=0.1, eval_interval=50_000, eval_episodes=500, seeds=[0, 1, 2, 3, 4],
 )  # fmt: skip
 STUDY_POOL_SIZES = int_in(1, MAX_POOL_SIZE)  # a pool of maps: train.py's 0 (one map) is not one
 CONDITIONS = {"greedy": 0.0, "eps": EVAL_EPSILON}

@@ -99,7 +99,7 @@ class TrainConfig:
     epsilon <- max(epsilon_end, epsilon * factor) (e.g. 0.995); 0 = linear schedule"""
     epsilon_fraction: float = 0.5
     """with --epsilon_decay 0: fraction (0, 1] of the run over which epsilon falls linearly"""
-    hidden_dim: int = 64
+    hidden_dim: int = 128
     """units of the hidden layer"""
     target_update: int = 0
     """gradient updates (not episodes, not env steps) between hard copies of the online
