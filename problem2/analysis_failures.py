@@ -149,10 +149,11 @@ def failure_decomposition(results: EpisodeResults, target: tuple[int, int]) -> d
     failed = ~results.successes
     taken = (np.arange(horizon)[None, :] < results.lengths[:, None])[..., None]  # (E, T, 1)
     began_on = on[:, :-1] & taken  # steps begun on the target
+    stayed = began_on & on[:, 1:]  # ... and still on it after the step
     left = (began_on & ~on[:, 1:]).any(axis=(1, 2))
     count = int(failed.sum())
     began_by_agent = began_on.sum(axis=(0, 1))  # (2,)
-    stays_by_agent = (began_on & on[:, 1:]).sum(axis=(0, 1)) / np.maximum(began_by_agent, 1)
+    stays_by_agent = stayed.sum(axis=(0, 1)) / np.maximum(began_by_agent, 1)
     both_began = bool(began_by_agent.all())
 
     def share(kind: np.ndarray) -> float | None:
@@ -163,9 +164,7 @@ def failure_decomposition(results: EpisodeResults, target: tuple[int, int]) -> d
         "navigation": share(~reached.all(axis=1)),
         "timing": share(reached.all(axis=1)),
         "reached_and_left": share(left),
-        "stay_on_target_share": float((began_on & on[:, 1:]).sum() / began_on.sum())
-        if began_on.any()
-        else None,
+        "stay_on_target_share": float(stayed.sum() / began_on.sum()) if began_on.any() else None,
         "stay_share_more_staying": float(stays_by_agent.max()) if both_began else None,
         "stay_share_less_staying": float(stays_by_agent.min()) if both_began else None,
         "steps_begun_on_target": int(began_on.sum()),

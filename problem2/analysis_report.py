@@ -9,8 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from _atomic import temporary_path_for
-
-FAILURE_COLUMNS = ("swapping", "parked", "looping", "other")
+from analysis_failures import DECOMPOSITION, FAILURE_KINDS
 
 
 def _stat(stat: dict | None, digits: int = 3) -> str:
@@ -125,11 +124,11 @@ def failure_section(performance: dict) -> list[str]:
             for condition in ("greedy", "eps"):
                 failures = entry[condition]["failures"]
                 failed = 1 - entry[condition]["success_rate"]["mean"]
-                shares = [_number(failures[kind]["mean"]) for kind in FAILURE_COLUMNS]
+                shares = [_number(failures[kind]["mean"]) for kind in FAILURE_KINDS]
                 rows.append([name, entry["label"], condition, f"{failed:.3f}", *shares])
     definitions = performance["protocol"]["failure_definitions"]
     notes = [f"- **{kind}**: {text}" for kind, text in definitions.items()]
-    header = ["experiment", "mode", "condition", "failed", *FAILURE_COLUMNS]
+    header = ["experiment", "mode", "condition", "failed", *FAILURE_KINDS]
     return [
         "## How episodes fail (share of failed episodes, mean over seeds)",
         "",
@@ -240,14 +239,7 @@ def intervention_section(communication: dict) -> list[str]:
 
 def decomposition_section(performance: dict) -> list[str]:
     main = performance["experiments"].get("main") or next(iter(performance["experiments"].values()))
-    keys = (
-        "navigation",
-        "timing",
-        "reached_and_left",
-        "stay_on_target_share",
-        "stay_share_more_staying",
-        "stay_share_less_staying",
-    )
+    keys = tuple(DECOMPOSITION)  # the measures in their defined order
     rows = [
         [mode, condition, f"{1 - entry[condition]['success_rate']['mean']:.3f}"]
         + [_stat(entry[condition]["failure_decomposition"][key]) for key in keys]
