@@ -79,7 +79,7 @@ class TrainConfig:
     """if positive, train for this many finished episodes instead of --total_steps"""
     num_envs: int = 64
     """parallel environments that collect experience"""
-    batch_size: int = 192
+    batch_size: int = 128
     """transitions per gradient update"""
     lr: float = 5e-4
     """Adam learning rate at the start (finite, > 0)"""
