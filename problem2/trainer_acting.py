@@ -104,14 +104,15 @@ class TrainerActing:
         """obs (N, 2, D) -> ε-greedy actions (N, 2) int64 and messages (N, 2) float32."""
         with torch.inference_mode():  # = no_grad, and cheaper per operation
             q_values, logits = self.online(torch.from_numpy(obs).transpose(0, 1) * self.mask)
+            logits = logits[..., 0]  # (2, N)
             if noisy_messages and self.cfg.comm_noise > 0:
-                logits = logits + self.cfg.comm_noise * torch.randn(
-                    logits.shape, generator=self.noise_rng
-                )
+                noise = torch.randn(logits.shape, generator=self.noise_rng)
+                logits = noise.mul_(self.cfg.comm_noise).add_(logits)
             actions = q_values.max(dim=-1).indices.T.numpy()
-            messages = torch.sigmoid(logits[..., 0]).T.numpy()
-        explore = rng.random(actions.shape) < epsilon
-        actions = np.where(explore, rng.integers(0, NUM_ACTIONS, actions.shape), actions)
+            messages = torch.sigmoid(logits).T.numpy()
+        if epsilon > 0:  # a greedy policy draws nothing
+            explore = rng.random(actions.shape) < epsilon
+            actions = np.where(explore, rng.integers(0, NUM_ACTIONS, actions.shape), actions)
         return actions, messages
 
     def select_action(
