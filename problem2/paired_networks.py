@@ -105,7 +105,7 @@ class PairedQNetworks(nn.Module):
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``x`` [2, B, D] (A's inputs, then B's) -> (Q [2, B, A], message logit [2, B, 1])."""
         hidden_weight, hidden_bias, head_weight, head_bias = self.weights()
-        hidden = torch.relu(torch.baddbmm(hidden_bias, x, hidden_weight.transpose(1, 2)))
+        hidden = torch.baddbmm(hidden_bias, x, hidden_weight.transpose(1, 2)).relu_()
         heads = torch.baddbmm(head_bias, hidden, head_weight.transpose(1, 2))
         logits = heads[..., -1:]
         if not self.dueling:
