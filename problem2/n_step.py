@@ -1,4 +1,4 @@
-"""n-step transitions from the steps of N parallel episodes, for the replay buffer."""
+"""n-step transitions from the steps of N parallel episodes, as replay rows."""
 
 from __future__ import annotations
 
@@ -16,9 +16,16 @@ class NStepWindow:
     n, or fewer where the episode ends (terminal or cut off) before t + n. A transition
     leaves the window at step t + k - 1; with n = 1 every step is its own transition at once.
 
-    Slot layout, e.g. n = 3 steps and N = 2 copies: the fields of the transition that starts
-    at step s of the run in copy c are held in row s % 3 of ``starts`` (3, 2, ...), which is
-    slot (s % 3) * 2 + c of the flat view (6, ...)::
+    Transitions are rows in the replay buffer's column layout (``layout``: field name ->
+    columns, :attr:`replay_buffer.ReplayBuffer.layout`), so that the complete ones are
+    stored with one write (:meth:`replay_buffer.ReplayBuffer.push_rows`). The caller gives
+    the fields known when a transition starts (state, action, message, ...); the window
+    fills ``reward``, ``next_state_A``/``_B``, ``done``, ``discount`` and, for n > 1,
+    ``last_state_A``/``_B`` (with one step it is the state).
+
+    Slot layout, e.g. n = 3 steps and N = 2 copies: the row of the transition that starts
+    at step s of the run in copy c is ``rows[s % 3, c]`` of ``rows`` (3, 2, width), which is
+    slot (s % 3) * 2 + c of the flat view (6, width)::
 
         slot            0    1    2    3    4    5
         row (s % 3)     0    0    1    1    2    2
@@ -34,37 +41,42 @@ class NStepWindow:
     def __init__(self, n_step: int, gamma: float, n_envs: int) -> None:
         self.n_step, self.gamma = _positive_int(n_step, "n_step"), float(gamma)
         self.discounts = np.array([self.gamma**k for k in range(self.n_step + 1)])  # γ^k
-        # The last n steps' fields, a ring over steps: step s of the run is row s % n.
-        self.starts: dict[str, np.ndarray] = {}  # each (n, N, ...), allocated at the first add
-        self._by_slot: dict[str, np.ndarray] = {}  # the same, (n * N, ...)
+        # The last n steps' rows, a ring over steps: step s of the run is row s % n.
+        self.rows = np.zeros((self.n_step, n_envs, 0), np.float32)  # sized at the first add
         self.returns = np.zeros((self.n_step, n_envs))  # discounted rewards so far (float64)
         self.steps_added = 0
         self.in_episode = np.zeros(n_envs, np.int64)  # window steps of each running episode
 
     def add(
-        self, start: dict[str, np.ndarray], reward: np.ndarray, next_obs: np.ndarray,
-        obs: np.ndarray, terminated: np.ndarray, finished: np.ndarray,
-    ) -> dict[str, np.ndarray]:  # fmt: skip
-        """One step of the N episodes: ``start`` the fields of the transitions starting now
-        (state, action, message, ... each (N, ...), each field with the dtype and shape of
-        the first add), ``reward`` (N,), the observations after (``next_obs``) and before
-        (``obs``) the step (N, 2, D), ``terminated`` and ``finished`` (terminated or cut
-        off) (N,) bool. Returns the transitions that are complete, oldest start first (by
-        copy within one start step), as replay fields (``last_state_*`` only for n > 1:
-        with one step it is the state); empty if none."""
+        self, layout: dict[str, slice], start: dict[str, np.ndarray], reward: np.ndarray,
+        next_obs: np.ndarray, obs: np.ndarray, terminated: np.ndarray, finished: np.ndarray,
+    ) -> np.ndarray:  # fmt: skip
+        """One step of the N episodes.
+
+        Args:
+            layout: the replay columns of each field (the same at every add).
+            start: the fields of the transitions starting now, each (N, columns): written
+                from the first column of the field it is named after on (e.g. ``state_A``
+                (N, 2 D) fills the columns of state_A, then of state_B).
+            reward: (N,) this step's rewards.
+            next_obs, obs: (N, 2, D) the observations after and before the step.
+            terminated, finished: (N,) bool; finished = terminated or cut off.
+
+        Returns the rows (K, width) float32 of the K transitions that are complete, oldest
+        start first (by copy within one start step); K may be 0."""
         n, row = self.n_step, self.steps_added % self.n_step
-        if not self.starts:
-            self.starts = {
-                k: np.zeros((n, *np.shape(v)), np.asarray(v).dtype) for k, v in start.items()
-            }
-            # The same storage indexed by step row * N + copy (np.take on it is fastest).
-            self._by_slot = {k: v.reshape(-1, *v.shape[2:]) for k, v in self.starts.items()}
+        copies = len(self.in_episode)
+        width = max(columns.stop for columns in layout.values())
+        if self.rows.shape[2] != width:
+            self.rows = np.zeros((n, copies, width), np.float32)
         held = min(self.steps_added, n - 1)  # earlier steps still in the window
         older = (row - np.arange(1, held + 1)) % n  # their rows, newest first (age 1, 2, ...)
         self.returns[older] += self.discounts[1 : held + 1, None] * reward
         self.returns[row] = reward
-        for name, value in start.items():
-            self.starts[name][row] = value
+        starting = self.rows[row]
+        for name, values in start.items():
+            block, first = values.reshape(copies, -1), layout[name].start
+            starting[:, first : first + block.shape[1]] = block
         self.steps_added += 1
         self.in_episode = np.minimum(self.in_episode + 1, n)
         # Steps since each transition began (oldest first), and which are due now.
@@ -72,18 +84,16 @@ class NStepWindow:
         due = (lags < self.in_episode) & (finished | (lags == n - 1))
         self.in_episode[finished] = 0
         lag, env = np.nonzero(due)  # in order: oldest start first, then by copy
-        if not len(env):
-            return {}
         lag = held - lag
-        slots = (row - lag) % n * len(self.in_episode) + env
-        fields = {name: np.take(values, slots, axis=0) for name, values in self._by_slot.items()}
-        after, done = np.take(next_obs, env, axis=0), terminated[env]
-        fields |= dict(
-            reward=np.take(self.returns, slots).astype(np.float32),
-            next_state_A=after[:, 0], next_state_B=after[:, 1], done=done,
-            discount=np.where(done, 0.0, self.discounts[lag + 1]).astype(np.float32),
-        )  # fmt: skip
-        if n > 1:
-            before = np.take(obs, env, axis=0)
-            fields |= dict(last_state_A=before[:, 0], last_state_B=before[:, 1])
-        return fields
+        slots = (row - lag) % n * copies + env
+        rows = np.take(self.rows.reshape(n * copies, width), slots, axis=0)
+        if len(env):
+            done = terminated[env]
+            pairs = {"next_state_A": next_obs} | ({"last_state_A": obs} if n > 1 else {})
+            for name, observations in pairs.items():  # A's observation, then B's
+                block, first = observations[env].reshape(len(env), -1), layout[name].start
+                rows[:, first : first + block.shape[1]] = block
+            rows[:, layout["reward"].start] = np.take(self.returns, slots)
+            rows[:, layout["done"].start] = done
+            rows[:, layout["discount"].start] = np.where(done, 0.0, self.discounts[lag + 1])
+        return rows

@@ -5,10 +5,11 @@ priority^alpha from a sum-tree. Both store a joint transition as one float32 row
 preallocated matrix, created at the first push with the per-transition shapes it brings
 (so 10- and 11-dim observations both work) and written as a ring; each field is a block
 of columns (:attr:`ReplayBuffer.layout`), so that a learner can draw a whole batch with one
-gather (:meth:`ReplayBuffer.sample_rows`). Besides the ten required fields a buffer may
-store further named arrays (e.g. the partner's previous observation, for DIAL): whatever
-extra keywords the first push brings, every later push must bring too. Every field is
-stored as float32 (exact for the actions) and read back in its dtype.
+gather (:meth:`ReplayBuffer.sample_rows`), and a producer that packs rows in that layout
+can store them with one write (:meth:`ReplayBuffer.push_rows`). Besides the ten required
+fields a buffer may store further named arrays (e.g. the partner's previous observation,
+for DIAL): whatever extra keywords the first push brings, every later push must bring too.
+Every field is stored as float32 (exact for the actions) and read back in its dtype.
 """
 
 from __future__ import annotations
@@ -144,24 +145,62 @@ class ReplayBuffer:
         if validate:
             check_transitions(arrays)
         if not self._storage:
-            self._allocate(arrays)
+            dtypes = {name: value.dtype for name, value in arrays.items()}
+            self.allocate({name: value.shape[1:] for name, value in arrays.items()}, dtypes)
         self._check_fields(arrays)
         batch_size = min(lengths.pop(), self.capacity)
-        slots = (self._next_slot + np.arange(batch_size)) % self.capacity
-        end = self._next_slot + batch_size
-        rows = slice(self._next_slot, end) if end <= self.capacity else slots  # slices: faster
+        slots, rows = self._claim(batch_size)
         for name, value in arrays.items():
             self._storage[name][rows] = value[-batch_size:]
-        self._next_slot = int(slots[-1] + 1) % self.capacity
-        self._size = min(self._size + batch_size, self.capacity)
+        self._stored(slots)
         return slots
 
-    def _allocate(self, arrays: dict[str, np.ndarray]) -> None:
-        extras = sorted(set(arrays) - set(TRANSITION_FIELDS))
+    def push_rows(self, rows: np.ndarray) -> np.ndarray:
+        """Store B transitions given as whole rows (B, row width), packed in the columns of
+        :attr:`layout` (which :meth:`allocate` or the first push fixed), e.g. by
+        :class:`n_step.NStepWindow`. Not checked beyond their shape. Returns the slots
+        written, as :meth:`push_batch` does."""
+        if not self.layout:
+            raise ValueError("push_rows needs a buffer whose columns are fixed: allocate() first")
+        if rows.ndim != 2 or rows.shape[1] != self._rows.shape[1] or not len(rows):
+            raise ValueError(
+                f"rows must have shape (B, {self._rows.shape[1]}) with B > 0, got {rows.shape}"
+            )
+        batch_size = min(len(rows), self.capacity)
+        slots, where = self._claim(batch_size)
+        self._rows[where] = rows[-batch_size:]
+        self._stored(slots)
+        return slots
+
+    def _claim(self, batch_size: int) -> tuple[np.ndarray, slice | np.ndarray]:
+        """The next ``batch_size`` slots of the ring, as an array and as an index of the
+        rows (a slice where they do not wrap: faster); counts them as stored."""
+        slots = (self._next_slot + np.arange(batch_size)) % self.capacity
+        end = self._next_slot + batch_size
+        rows = slice(self._next_slot, end) if end <= self.capacity else slots
+        self._next_slot = int(slots[-1] + 1) % self.capacity
+        self._size = min(self._size + batch_size, self.capacity)
+        return slots, rows
+
+    def _stored(self, slots: np.ndarray) -> None:
+        """Called with the slots of every push (prioritised replay sets their priority)."""
+
+    def allocate(
+        self, shapes: dict[str, tuple[int, ...]], dtypes: dict[str, np.dtype] | None = None
+    ) -> dict[str, slice]:
+        """Fix the fields of an empty buffer: the ten required and any extras, by their
+        per-transition ``shapes``; ``dtypes`` the extras' (default float32; the required
+        fields have theirs). The first push calls this; a learner that packs rows itself
+        calls it first. Returns :attr:`layout`."""
+        if self._storage:
+            raise ValueError("the buffer's fields are fixed already (by the first push)")
+        missing = [name for name in TRANSITION_FIELDS if name not in shapes]
+        if missing:
+            raise ValueError(f"allocate is missing required fields {missing}")
+        extras = sorted(set(shapes) - set(TRANSITION_FIELDS))
         names = (*TRANSITION_FIELDS, *extras)
-        columns = [name for name in PAIRED_FIELDS if name in arrays]
+        columns = [name for name in PAIRED_FIELDS if name in shapes]
         columns += [name for name in names if name not in PAIRED_FIELDS]
-        shapes = {name: arrays[name].shape[1:] for name in names}
         width = 0
         for name in columns:
             size = int(np.prod(shapes[name], dtype=np.int64))
@@ -174,11 +213,12 @@ class ReplayBuffer:
             elif name in TRANSITION_FIELDS:
                 self._dtypes[name] = np.dtype(np.float32)
             else:
-                self._dtypes[name] = arrays[name].dtype
+                self._dtypes[name] = np.dtype((dtypes or {}).get(name, np.float32))
             columns_of_name = self._rows[:, self.layout[name]]  # a view: writes reach the rows
             self._storage[name] = np.reshape(
                 columns_of_name, (self.capacity, *shapes[name]), copy=False
             )
+        return self.layout
 
     def _check_fields(self, arrays: dict[str, np.ndarray]) -> None:
         if set(arrays) != set(self._storage):
@@ -322,10 +362,8 @@ class PrioritizedReplayBuffer(ReplayBuffer):
         progress = min(1.0, self._samples_drawn / self.beta_steps)
         return self.beta_start + (1.0 - self.beta_start) * progress
 
-    def push_batch(self, *, validate: bool = True, **arrays: np.ndarray) -> np.ndarray:
-        slots = super().push_batch(validate=validate, **arrays)
+    def _stored(self, slots: np.ndarray) -> None:
         self._tree.update(slots, self._max_priority**self.alpha)
-        return slots
 
     def _draw_indices(self, batch_size: int) -> np.ndarray:
         slice_width = self._tree.total / batch_size

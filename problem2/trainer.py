@@ -140,28 +140,40 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
         one step before its start (DIAL). ``next_obs`` is the true next observation also
         where an episode was cut off (``truncated``). Into a buffer that was first filled by
         hand (the ten fields only) it pushes this step's one-step transitions instead."""
-        start = dict(
-            state_A=rollout.obs[:, 0], state_B=rollout.obs[:, 1],
-            action_A=actions[:, 0], action_B=actions[:, 1],
-            comm_A=messages[:, 0], comm_B=messages[:, 1],
-        )  # fmt: skip
-        if len(self.replay_buffer) and "discount" not in self.replay_buffer.field_names:
+        buffer = self.replay_buffer
+        if len(buffer) and "discount" not in buffer.field_names:
             # A buffer first filled by hand holds the ten fields of one-step transitions.
-            fields = start | dict(
-                reward=rewards, next_state_A=next_obs[:, 0], next_state_B=next_obs[:, 1],
-                done=terminated,
+            buffer.push_batch(
+                state_A=rollout.obs[:, 0], state_B=rollout.obs[:, 1],
+                action_A=actions[:, 0], action_B=actions[:, 1],
+                comm_A=messages[:, 0], comm_B=messages[:, 1], reward=rewards,
+                next_state_A=next_obs[:, 0], next_state_B=next_obs[:, 1], done=terminated,
             )  # fmt: skip
-            self.replay_buffer.push_batch(**fields)
             return
-        start |= dict(
-            prev_state_A=rollout.prev_obs[:, 0],
-            prev_state_B=rollout.prev_obs[:, 1],
-            has_prev=rollout.has_prev,
-        )
+        if not buffer.layout:  # an empty buffer: the columns of what the trainer stores
+            buffer.allocate(self.transition_shapes())
+        n = rollout.env.n_envs
+        start = {  # each pair of fields side by side: A's columns, then B's
+            "state_A": rollout.obs.reshape(n, -1), "prev_state_A": rollout.prev_obs.reshape(n, -1),
+            "action_A": actions, "comm_A": messages, "has_prev": rollout.has_prev,
+        }  # fmt: skip
         finished = terminated | truncated
-        fields = rollout.window.add(start, rewards, next_obs, rollout.obs, terminated, finished)
-        if fields:  # the environment checked the actions and clipped the messages
-            self.replay_buffer.push_batch(validate=False, **fields)
+        rows = rollout.window.add(
+            buffer.layout, start, rewards, next_obs, rollout.obs, terminated, finished
+        )
+        if len(rows):  # the environment checked the actions and clipped the messages
+            buffer.push_rows(rows)
+
+    def transition_shapes(self) -> dict[str, tuple[int, ...]]:
+        """The replay fields the trainer stores, with their per-transition shapes: the ten
+        required, each agent's previous observation and ``has_prev`` (DIAL), ``discount``
+        and, with n-step returns, the observations one step before the next
+        (``last_state_*``)."""
+        states = ["state", "next_state", "prev_state"] + ["last_state"] * (self.cfg.n_step > 1)
+        numbers = [f"{name}_{agent}" for name in ("action", "comm") for agent in "AB"]
+        numbers += ["reward", "done", "discount", "has_prev"]
+        shapes = {f"{name}_{agent}": (self.obs_dim,) for name in states for agent in "AB"}
+        return shapes | dict.fromkeys(numbers, ())
 
     def sample(self, batch_size: int) -> TransitionBatch:
         """A batch from the replay buffer: its packed rows, gathered into one tensor that

@@ -37,6 +37,47 @@ def test_ring_buffer_keeps_the_latest_transitions() -> None:
     assert set(buffer.get(np.arange(5))["state_A"][:, 0].tolist()) == {107, 108, 109, 110, 111}
 
 
+@pytest.mark.parametrize("buffer_class", [ReplayBuffer, PrioritizedReplayBuffer])
+def test_packed_rows_store_what_the_same_fields_store(buffer_class: type) -> None:
+    """push_rows of rows packed in the layout that allocate() fixes = push_batch of the
+    fields, also across the end of the ring; new rows get the largest priority (PER)."""
+    batch = batch_of(0, 7)
+    by_fields, by_rows = buffer_class(5), buffer_class(5)
+    by_fields.push_batch(**{name: value[:4] for name, value in batch.items()})
+    by_fields.push_batch(**{name: value[4:] for name, value in batch.items()})
+    layout = by_rows.allocate({name: value.shape[1:] for name, value in batch.items()})
+    assert layout == by_fields.layout
+    rows = np.zeros((7, max(c.stop for c in layout.values())), np.float32)
+    for name, value in batch.items():
+        rows[:, layout[name]] = value.reshape(7, -1)
+    assert np.array_equal(by_rows.push_rows(rows[:4]), np.arange(4))
+    assert np.array_equal(by_rows.push_rows(rows[4:]), [4, 0, 1])  # wraps around
+    stored, expected = by_rows.get(np.arange(5)), by_fields.get(np.arange(5))
+    for name in TRANSITION_FIELDS:
+        assert (
+            np.array_equal(stored[name], expected[name])
+            and stored[name].dtype == expected[name].dtype
+        ), name
+    if buffer_class is PrioritizedReplayBuffer:
+        assert np.array_equal(
+            by_rows._tree.values(np.arange(5)), by_fields._tree.values(np.arange(5))
+        )
+
+
+def test_packed_rows_need_fixed_columns_of_their_width() -> None:
+    buffer = ReplayBuffer(5)
+    with pytest.raises(ValueError, match="allocate"):
+        buffer.push_rows(np.zeros((2, 30), np.float32))
+    shapes = {name: value.shape[1:] for name, value in batch_of(0, 1).items()}
+    with pytest.raises(ValueError, match="missing required fields"):
+        buffer.allocate({k: v for k, v in shapes.items() if k != "reward"})
+    layout = buffer.allocate(shapes)
+    with pytest.raises(ValueError, match="shape"):
+        buffer.push_rows(np.zeros((2, max(c.stop for c in layout.values()) + 1), np.float32))
+    with pytest.raises(ValueError, match="fixed already"):
+        buffer.allocate(shapes)
+
+
 def test_sampled_fields_stay_aligned_and_typed() -> None:
     buffer = ReplayBuffer(capacity=50, seed=1)
     buffer.push_batch(**batch_of(0, 30))
@@ -286,13 +327,18 @@ def test_n_step_window_gives_each_step_its_discounted_k_step_return(n_step: int)
     terminated = finished & (rng.random((n_steps, n_envs)) < 0.5)
     finished[-1] = terminated[-1] = True  # every episode ends
     observations = rng.normal(size=(n_steps + 1, n_envs, 2, 1))
+    names = ["step", "env", "next_state_A", "next_state_B", "last_state_A", "last_state_B"]
+    names += ["reward", "done", "discount"]
+    layout = {name: slice(column, column + 1) for column, name in enumerate(names)}
     emitted = []
     for t in range(n_steps):
         start = {"step": np.full(n_envs, t), "env": np.arange(n_envs)}
-        out = window.add(
-            start, rewards[t], observations[t + 1], observations[t], terminated[t], finished[t]
-        )
-        emitted += [{k: v[i] for k, v in out.items()} for i in range(len(out.get("env", [])))]
+        rows = window.add(
+            layout, start, rewards[t], observations[t + 1], observations[t], terminated[t],
+            finished[t],
+        )  # fmt: skip
+        assert rows.dtype == np.float32 and rows.shape[1] == len(names)
+        emitted += [{name: row[layout[name].start] for name in names} for row in rows]
     expected = []
     for env in range(n_envs):
         for t in range(n_steps):
@@ -310,9 +356,11 @@ def test_n_step_window_gives_each_step_its_discounted_k_step_return(n_step: int)
         got = by_start[(want["step"], want["env"])]
         assert got["reward"] == pytest.approx(want["reward"], rel=1e-5, abs=1e-5)
         assert bool(got["done"]) == want["terminal"]
-        assert got["next_state_A"] == pytest.approx(observations[want["last"] + 1, want["env"], 0])
+        after = observations[want["last"] + 1, want["env"], :, 0]  # A's, then B's
+        assert [got["next_state_A"], got["next_state_B"]] == pytest.approx(after.tolist())
         assert got["discount"] == pytest.approx(0.0 if want["terminal"] else gamma ** want["k"])
         if n_step > 1:
-            assert got["last_state_A"] == pytest.approx(observations[want["last"], want["env"], 0])
-        else:
-            assert "last_state_A" not in got
+            before = observations[want["last"], want["env"], :, 0]
+            assert [got["last_state_A"], got["last_state_B"]] == pytest.approx(before.tolist())
+        else:  # one-step transitions leave last_state to the learner (it is the state)
+            assert got["last_state_A"] == 0.0
