@@ -11,6 +11,7 @@ and the batch of runs with its outputs in ``experiments.py``.
 
 from __future__ import annotations
 
+import gc
 import sys
 from typing import Any
 
@@ -51,7 +52,12 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
 
 
 if __name__ == "__main__":
+    # The modules' objects (torch alone has ~170 k) live until exit: moved out of the garbage
+    # collector's reach, they are not traversed by its full passes during the run, nor by
+    # the one at exit (freeze again: what the run imported). Exit is ~0.3 s sooner.
+    gc.freeze()
     try:
         main()
     except KeyboardInterrupt:
         sys.exit(130)
+    gc.freeze()
