@@ -66,9 +66,10 @@ class NStepWindow:
         start first (by copy within one start step); K may be 0."""
         n, row = self.n_step, self.steps_added % self.n_step
         copies = len(self.in_episode)
-        width = max(columns.stop for columns in layout.values())
-        if self.rows.shape[2] != width:
+        if not self.rows.shape[2]:  # the first add: a row of the layout's width
+            width = max(columns.stop for columns in layout.values())
             self.rows = np.zeros((n, copies, width), np.float32)
+        width = self.rows.shape[2]
         held = min(self.steps_added, n - 1)  # earlier steps still in the window
         older = (row - np.arange(1, held + 1)) % n  # their rows, newest first (age 1, 2, ...)
         self.returns[older] += self.discounts[1 : held + 1, None] * reward

@@ -29,7 +29,12 @@ import torch.nn.functional as F
 from models import observation_mask
 from multi_agent_env import NUM_ACTIONS, MultiAgentEnv, VectorMultiAgentEnv
 from paired_networks import FlatAdam, PairedQNetworks
-from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
+from replay_buffer import (
+    STATE_FIELDS,
+    TRANSITION_FIELDS,
+    PrioritizedReplayBuffer,
+    ReplayBuffer,
+)
 from rollout import EVAL_EPSILON
 from td_update import FastTDGradient, TransitionBatch
 from train_config import TrainConfig
@@ -169,11 +174,11 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
         required, each agent's previous observation and ``has_prev`` (DIAL), ``discount``
         and, with n-step returns, the observations one step before the next
         (``last_state_*``)."""
-        states = ["state", "next_state", "prev_state"] + ["last_state"] * (self.cfg.n_step > 1)
-        numbers = [f"{name}_{agent}" for name in ("action", "comm") for agent in "AB"]
-        numbers += ["reward", "done", "discount", "has_prev"]
-        shapes = {f"{name}_{agent}": (self.obs_dim,) for name in states for agent in "AB"}
-        return shapes | dict.fromkeys(numbers, ())
+        observation = (self.obs_dim,)
+        shapes = {name: observation if name in STATE_FIELDS else () for name in TRANSITION_FIELDS}
+        states = ["prev_state"] + ["last_state"] * (self.cfg.n_step > 1)
+        shapes |= {f"{name}_{agent}": observation for name in states for agent in "AB"}
+        return shapes | {"discount": (), "has_prev": ()}
 
     def sample(self, batch_size: int) -> TransitionBatch:
         """A batch from the replay buffer: its packed rows, gathered into one tensor that
