@@ -38,7 +38,7 @@ P2_STUDIES := results/studies
 problem2: p2-baselines p2-main p2-evaluate
 
 p2-baselines: $(RUNTIME_STAMP)
-	cd problem2 && $(PY) baselines.py
+	cd problem2 && $(PY) -m analysis.baselines
 
 p2-main: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) train.py --overwrite
@@ -56,13 +56,13 @@ p2-studies: $(RUNTIME_STAMP)
 	cd problem2 && for reward in per_step arrival; do \
 		$(PY) train.py --reward_mode $$reward --select_by return --overwrite \
 			--output_dir $(P2_STUDIES)/reward/$$reward || exit 1; done
-	cd problem2 && $(PY) reward_study.py
+	cd problem2 && $(PY) -m studies.reward_study
 	cd problem2 && $(PY) train.py --mode comm,full --comm_learning none --num_seeds 3 \
 		--overwrite --output_dir $(P2_STUDIES)/no_dial
 	cd problem2 && for map in 0 1 2 3 4; do \
 		$(PY) train.py --map_seed $$map --num_seeds 3 --overwrite \
 			--output_dir $(P2_STUDIES)/map_panel/map$$map || exit 1; done
-	cd problem2 && $(PY) map_pool_study.py
+	cd problem2 && $(PY) -m studies.map_pool_study
 
 ## The written report, built from the result files (seconds). Your name on the cover:
 ##   make report NAME="Full Name" EMAIL="you@usc.edu"   (only values given on this command line)

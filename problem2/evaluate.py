@@ -16,12 +16,12 @@ with a note). A bad model (missing, damaged, unlisted, NaN Q-values, a message o
 [0, 1]) stops the run before any output is written, naming the file (exit status 1).
 
 The course interface lives here: :func:`load_trained_models`, :class:`MultiAgentEvaluator`
-(``analysis_evaluator.py``) and :func:`create_evaluation_report` (``analysis_report.py``).
-The run of ``python evaluate.py``: ``analysis_pipeline.py`` evaluates the training maps and
-``analysis_generalization.py`` the other maps (episodes through ``rollout.run_episodes``;
-measures from the recorded episodes: ``analysis_failures``, ``analysis_messages``,
-``analysis_information``, ``analysis_interventions``, ``analysis_stats``), and
-``analysis_outputs.py`` writes ``evaluation_results/`` beside the agent_models folder (see
+(``analysis/evaluator.py``) and :func:`create_evaluation_report` (``analysis/report.py``).
+The run of ``python evaluate.py``: ``analysis/pipeline.py`` evaluates the training maps and
+``analysis/generalization.py`` the other maps (episodes through ``rollout.run_episodes``;
+measures from the recorded episodes: ``analysis/failures.py``, ``analysis/messages.py``,
+``analysis/information.py``, ``analysis/interventions.py``, ``analysis/stats.py``), and
+``analysis/outputs.py`` writes ``evaluation_results/`` beside the agent_models folder (see
 that module for the list of files).
 """
 
@@ -34,11 +34,11 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from analysis_evaluator import MultiAgentEvaluator
-from analysis_outputs import write_outputs
-from analysis_pipeline import evaluate_all
-from analysis_report import create_evaluation_report, format_report
-from analysis_runs import (
+from analysis.evaluator import MultiAgentEvaluator
+from analysis.outputs import write_outputs
+from analysis.pipeline import evaluate_all
+from analysis.report import create_evaluation_report, format_report
+from analysis.runs import (
     DEFAULT_ROOT,
     MODES,
     best_seed,

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 from collections import deque
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -161,3 +162,57 @@ def load_map(path: str | Path) -> np.ndarray:
         return check_grid(content["grid"])
     except ValueError as error:
         raise ValueError(f"{path}: {error}") from error
+
+
+# ------------------------------------------------------------------ pools of generated maps
+# For agents that must not memorise one map. Three disjoint ranges of map seeds: training
+# maps TRAINING_FIRST_SEED + i (a new one drawn at each episode start), validation maps
+# VALIDATION_FIRST_SEED + i (checkpoint selection), and the held-out test maps
+# HELD_OUT_MAP_SEEDS, on which no setting or checkpoint is chosen (analysis/held_out.py tests
+# on them). A pool also drops any generated map that equals a held-out map or the default
+# map cell for cell, so "disjoint" holds for the maps, not only the seeds.
+HELD_OUT_MAP_SEEDS = tuple(range(1000, 1040))  # also the evaluator's held-out maps
+TRAINING_FIRST_SEED = 100_000
+VALIDATION_FIRST_SEED = 200_000
+MAX_POOL_SIZE = VALIDATION_FIRST_SEED - TRAINING_FIRST_SEED  # the ranges never overlap
+
+
+@lru_cache(maxsize=8)
+def _excluded_maps(grid_size: tuple[int, int]) -> frozenset[bytes]:
+    seeds = (*HELD_OUT_MAP_SEEDS, DEFAULT_MAP_SEED)
+    return frozenset(generate_map(grid_size, seed).tobytes() for seed in seeds)
+
+
+@lru_cache(maxsize=8)
+def _pool(first_seed: int, size: int, grid_size: tuple[int, int]) -> np.ndarray:
+    if not isinstance(size, int) or not 1 <= size <= MAX_POOL_SIZE:
+        raise ValueError(f"a map pool holds 1..{MAX_POOL_SIZE} maps, got {size!r}")
+    excluded = _excluded_maps(grid_size)
+    maps, seed = [], first_seed
+    while len(maps) < size:
+        grid = generate_map(grid_size, seed)
+        if grid.tobytes() not in excluded:
+            maps.append(grid)
+        seed += 1
+    pool = np.stack(maps)
+    pool.flags.writeable = False
+    return pool
+
+
+def training_maps(size: int, grid_size: tuple[int, int] = (10, 10)) -> np.ndarray:
+    """The first ``size`` training maps (size, H, W) int64 (read-only, cached)."""
+    return _pool(TRAINING_FIRST_SEED, size, tuple(grid_size))
+
+
+def validation_maps(size: int, grid_size: tuple[int, int] = (10, 10)) -> np.ndarray:
+    """The first ``size`` validation maps (size, H, W) int64 (read-only, cached)."""
+    return _pool(VALIDATION_FIRST_SEED, size, tuple(grid_size))
+
+
+@lru_cache(maxsize=8)
+def held_out_maps(grid_size: tuple[int, int] = (10, 10)) -> np.ndarray:
+    """The 40 held-out test maps (40, H, W), in the order of ``HELD_OUT_MAP_SEEDS`` (read-only,
+    cached)."""
+    maps = np.stack([generate_map(tuple(grid_size), seed) for seed in HELD_OUT_MAP_SEEDS])
+    maps.flags.writeable = False
+    return maps

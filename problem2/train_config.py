@@ -19,8 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from grid_maps import generate_map
-from map_pool import MAX_POOL_SIZE
+from grid_maps import MAX_POOL_SIZE, generate_map
 from rollout import SELECT_BY
 from setting_checks import (
     Check,
@@ -147,7 +146,7 @@ class TrainConfig:
     overwrite: bool = False
     """replace a batch with other settings in --output_dir (see the rule below)"""
     map_pool: int = 0
-    """0: train on the --map_seed map; N > 0: on a pool of N generated maps (map_pool.py), a new
+    """0: train on the --map_seed map; N > 0: on a pool of N generated maps (grid_maps.py), a new
     one drawn at each episode start, evaluated on other generated maps (map_pool_study.py)"""
     validation_maps: int = 200
     """with --map_pool: generated validation maps of the periodic evaluations (1 or more)"""

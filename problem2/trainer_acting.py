@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from map_pool import training_maps, validation_maps
+from grid_maps import training_maps, validation_maps
 from multi_agent_env import NUM_ACTIONS, MultiAgentEnv, VectorMultiAgentEnv
 from n_step import NStepWindow
 from paired_networks import PairedQNetworks

@@ -34,9 +34,21 @@ def test_there_is_runtime_code_to_check() -> None:
     assert any(p.parent.name == "problem1" for p in runtime_files())
 
 
+def problem_folder(path: Path) -> Path:
+    """The folder a runtime file's imports resolve from: its top-level folder under ROOT
+    (problem2/analysis/x.py imports core modules and sibling packages from problem2/), or
+    its own folder outside ROOT."""
+    try:
+        return ROOT / path.relative_to(ROOT).parts[0]
+    except ValueError:
+        return path.parent
+
+
 def forbidden_imports(path: Path) -> list[str]:
     """Imports of ``path`` that are neither allowed libraries nor sibling modules."""
-    local_modules = {p.stem for p in path.parent.glob("*.py")}
+    folder = problem_folder(path)
+    local_modules = {p.stem for p in folder.glob("*.py")}
+    local_modules |= {p.parent.name for p in folder.glob("*/__init__.py")}
     third_party = REPORT_THIRD_PARTY if path.parent.name == "report" else ALLOWED_THIRD_PARTY
     allowed = third_party | local_modules | set(sys.stdlib_module_names)
     return [

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from baselines import (
+from analysis.baselines import (
     MAP_SEEDS,
     ON_TARGET_MESSAGE,
     PERPENDICULAR,

@@ -8,16 +8,17 @@ import json
 
 import numpy as np
 import pytest
-from analysis_evaluator import block_policy
-from analysis_failures import (
+from analysis.baselines import POLICIES, explorer_policy, oracle_policy, random_policy
+from analysis.evaluator import block_policy
+from analysis.failures import (
     FAILURE_KINDS,
     arrivals,
     classify_failures,
     failure_decomposition,
     on_target,
 )
-from analysis_information import causal_influence, mutual_information
-from analysis_interventions import (
+from analysis.information import causal_influence, mutual_information
+from analysis.interventions import (
     INTERVENTIONS,
     channel_verdict,
     intervene,
@@ -26,8 +27,7 @@ from analysis_interventions import (
     received_values,
     stack_tables,
 )
-from analysis_stats import bootstrap_ci, interquartile_mean, mode_differences, seed_statistics
-from baselines import POLICIES, explorer_policy, oracle_policy, random_policy
+from analysis.stats import bootstrap_ci, interquartile_mean, mode_differences, seed_statistics
 from evaluate import MultiAgentEvaluator
 from models import MESSAGE_INDEX
 from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv

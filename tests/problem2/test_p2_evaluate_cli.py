@@ -11,18 +11,18 @@ import subprocess
 import sys
 from pathlib import Path
 
-import baselines
 import evaluate as evaluate_module
 import numpy as np
 import pytest
 import torch
-from analysis_episodes import model_policy
-from analysis_evaluator import experiment_evaluator
-from analysis_generalization import models_on_maps
-from analysis_information import MEASURES
-from analysis_interventions import INTERVENTIONS
-from analysis_runs import best_seed, discover_experiments, sha256_of
-from baselines import POLICIES
+from analysis import baselines
+from analysis.baselines import POLICIES
+from analysis.episodes import model_policy
+from analysis.evaluator import experiment_evaluator
+from analysis.generalization import models_on_maps
+from analysis.information import MEASURES
+from analysis.interventions import INTERVENTIONS
+from analysis.runs import best_seed, discover_experiments, sha256_of
 from evaluate import (
     MultiAgentEvaluator,
     create_evaluation_report,
@@ -403,7 +403,7 @@ def test_cli_survives_a_cp1252_console(tiny_root: Path, tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr.decode("cp1252", "replace")
     assert b"success greedy" in result.stdout
     result = subprocess.run(
-        [sys.executable, "baselines.py", "--episodes", "20", "--map_seeds", "0",
+        [sys.executable, "-m", "analysis.baselines", "--episodes", "20", "--map_seeds", "0",
          "--output", str(tmp_path / "b.json")],
         cwd=PROBLEM2, capture_output=True, env=os.environ | {"PYTHONIOENCODING": "cp1252"},
     )  # fmt: skip

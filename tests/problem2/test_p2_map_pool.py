@@ -6,13 +6,19 @@ import json
 import warnings
 from pathlib import Path
 
-import map_pool_study
 import numpy as np
 import pytest
 import torch
-from grid_maps import DEFAULT_MAP_SEED, generate_map
-from map_pool import HELD_OUT_MAP_SEEDS, held_out_maps, training_maps, validation_maps
+from grid_maps import (
+    DEFAULT_MAP_SEED,
+    HELD_OUT_MAP_SEEDS,
+    generate_map,
+    held_out_maps,
+    training_maps,
+    validation_maps,
+)
 from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
+from studies import map_pool_study
 from train_config import TrainConfig
 from trainer import MultiAgentTrainer
 

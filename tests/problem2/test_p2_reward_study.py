@@ -8,18 +8,17 @@ from __future__ import annotations
 import itertools
 import json
 
-import joint_dp
 import numpy as np
 import pytest
-import reward_study
 import torch
-from analysis_runs import sha256_of
-from analysis_stats import seed_statistics
-from baselines import random_policy
+from analysis.baselines import random_policy
+from analysis.runs import sha256_of
+from analysis.stats import seed_statistics
 from grid_maps import generate_map, save_map
 from models import AgentDQN, export_policy
 from multi_agent_env import VectorMultiAgentEnv
 from rollout import run_episodes
+from studies import joint_dp, reward_study
 
 GAMMA = 0.99
 CORRIDOR_3 = np.array([[0, 2, 0]])  # A | target | B

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from baselines import random_policy
+from analysis.baselines import random_policy
 from models import AgentDQN, DuelingDQN
 from multi_agent_env import MultiAgentEnv, load_map
 from paired_networks import PairedQNetworks

@@ -23,20 +23,21 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import joint_dp
 import numpy as np
 import torch
 from _atomic import write_json_atomic
-from analysis_evaluator import MultiAgentEvaluator
-from analysis_failures import arrivals
-from analysis_runs import Experiment, load_model_pair, read_experiment
-from analysis_stats import seed_statistics
+from analysis.evaluator import MultiAgentEvaluator
+from analysis.failures import arrivals
+from analysis.runs import Experiment, load_model_pair, read_experiment
+from analysis.stats import seed_statistics
 from grid_maps import DEFAULT_MAP_SEED, TARGET, generate_map, target_distances
 from multi_agent_env import VectorMultiAgentEnv
-from reward_study_outputs import CONDITIONS, format_table, plot_study
 from rollout import EVAL_EPSILON, EVAL_SEED
 
-STUDY_DIR = Path(__file__).resolve().parent / "results" / "studies" / "reward"
+from studies import joint_dp
+from studies.reward_study_outputs import CONDITIONS, format_table, plot_study
+
+STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "reward"
 MODES = ("independent", "comm", "full")
 MEASURES = {
     "success_rate": "share of episodes with both agents on the target within 50 steps",
@@ -162,7 +163,7 @@ def shaping_check(grid: np.ndarray, gamma: float, horizon: int) -> dict:
 
 def open_batch(models_dir: Path, reward: str, grid: np.ndarray, horizon: int) -> Experiment:
     """The trained batch in ``models_dir`` (its manifest's runs and settings, every model
-    file checked, see ``analysis_runs.read_experiment``), trained on ``reward``, on ``grid``,
+    file checked, see ``analysis.runs.read_experiment``), trained on ``reward``, on ``grid``,
     with episodes of ``horizon`` steps (errors name the folder)."""
     experiment = read_experiment(reward, models_dir)
     if experiment is None:

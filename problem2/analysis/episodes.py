@@ -12,10 +12,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from analysis_failures import failure_shares
-from analysis_runs import check_policy_outputs
 from multi_agent_env import NUM_ACTIONS, VectorMultiAgentEnv
 from rollout import EVAL_SEED, EpisodeResults, PolicyFn, summarize
+
+from analysis.failures import failure_shares
+from analysis.runs import check_policy_outputs
 
 MAX_BATCH = 20_000  # copies stepped together (test episodes x blocks); more run in groups
 

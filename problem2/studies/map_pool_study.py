@@ -7,7 +7,7 @@ Every run trains through :meth:`trainer.MultiAgentTrainer.train` on ``map_pool``
 maps (a new one drawn at every episode start, :mod:`map_pool`), keeps the checkpoint that
 scored best on the validation maps, and is then tested on the 40 held-out maps
 (``HELD_OUT_MAP_SEEDS``), greedy and at epsilon = 0.05, ``--episodes_per_map`` episodes
-each, through :func:`map_pool.held_out_success`. The memoryless and sweeping explorers, the
+each, through :func:`analysis.held_out.held_out_success`. The memoryless and sweeping explorers, the
 random policy and the shortest-path oracle of :mod:`baselines` are tested the same way.
 
 The recipe (``RECIPE``) departs from the assignment's setting in two named ways:
@@ -41,16 +41,10 @@ from typing import Any
 import numpy as np
 import torch
 from _atomic import remove_stale_temporaries, temporary_path_for, write_json_atomic
-from analysis_stats import BOOTSTRAP_RESAMPLES, seed_statistics
+from analysis.held_out import baselines_on_held_out, held_out_success
+from analysis.stats import BOOTSTRAP_RESAMPLES, seed_statistics
 from batch_workers import ProgressLine, run_jobs
-from map_pool import (
-    HELD_OUT_MAP_SEEDS,
-    MAX_POOL_SIZE,
-    TRAINING_FIRST_SEED,
-    VALIDATION_FIRST_SEED,
-    baselines_on_held_out,
-    held_out_success,
-)
+from grid_maps import HELD_OUT_MAP_SEEDS, MAX_POOL_SIZE, TRAINING_FIRST_SEED, VALIDATION_FIRST_SEED
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED
@@ -58,7 +52,7 @@ from setting_checks import SettingError, check_value, int_in
 from train_config import MODES, TrainConfig, available_cores
 from trainer import MultiAgentTrainer
 
-STUDY_DIR = Path(__file__).resolve().parent / "results" / "studies" / "map_pool"
+STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "map_pool"
 RECIPE: dict[str, Any] = dict(
     map_pool=2000, validation_maps=200, share_weights=True, coverage_bonus=0.05,
     on_target_bonus=0.1, n_step=3, gamma=0.95, lr=2.5e-4, target_update=1000, batch_size=256,

@@ -14,12 +14,13 @@ from pathlib import Path
 
 import numpy as np
 from _atomic import temporary_path_for
-from analysis_failures import FAILURE_KINDS, classify_failures
 from grid_maps import OBSTACLE, TARGET
 from matplotlib.animation import FuncAnimation, PillowWriter
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from rollout import EpisodeResults
+
+from analysis.failures import FAILURE_KINDS, classify_failures
 
 AGENT_COLOURS = ("#1f77b4", "#d62728")  # A blue, B red
 AGENT_OFFSETS = (-0.12, 0.12)  # so that the two paths stay apart where they overlap

@@ -9,25 +9,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from analysis_episodes import (
-    MAX_BATCH,
-    EvaluationSetting,
-    episode_summary,
-    explore_by_step,
-    model_policy,
-    start_positions,
-)
-from analysis_interventions import (
-    CHANNEL_INTERVENTIONS,
-    intervene,
-    intervention_table,
-    mean_received,
-    stack_tables,
-)
-from analysis_messages import mean_message_per_cell, message_correlations, message_distribution
-from analysis_plots import plot_message_heatmap, plot_trajectories, representative_traces
-from analysis_runs import Experiment, check_policy, load_model_pair, model_paths
-from baselines import oracle_policy
 from grid_maps import ACTION_NAMES, OBSTACLE, TARGET, generate_map
 from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
 from rollout import (
@@ -39,6 +20,26 @@ from rollout import (
     split_blocks,
     summarize,
 )
+
+from analysis.baselines import oracle_policy
+from analysis.episodes import (
+    MAX_BATCH,
+    EvaluationSetting,
+    episode_summary,
+    explore_by_step,
+    model_policy,
+    start_positions,
+)
+from analysis.interventions import (
+    CHANNEL_INTERVENTIONS,
+    intervene,
+    intervention_table,
+    mean_received,
+    stack_tables,
+)
+from analysis.messages import mean_message_per_cell, message_correlations, message_distribution
+from analysis.plots import plot_message_heatmap, plot_trajectories, representative_traces
+from analysis.runs import Experiment, check_policy, load_model_pair, model_paths
 
 GENERALIZATION_MAP_SEEDS = tuple(range(10))
 PolicyFactory = Callable[[np.ndarray], PolicyFn]  # map (H, W) -> greedy policy on that map
@@ -99,7 +100,7 @@ class MultiAgentEvaluator:
         """The same ``num_episodes`` test episodes (start cells from ``self.seed``) once per
         block, all blocks stepped together: block k explores with ``epsilons[k]``, if given
         feeds ``interventions[k]`` ({observation index: table (E, T, 2)}, see
-        ``analysis_interventions``) and, if given, acts with ``policies[k]`` (default: this
+        ``analysis/interventions.py``) and, if given, acts with ``policies[k]`` (default: this
         evaluator's policy; e.g. the models of other seeds, run beside it in one batch).
         Exploration uses common random numbers: two blocks differ only by their policy,
         exploration rate and intervention."""
@@ -198,7 +199,7 @@ class MultiAgentEvaluator:
         seed: int = 0,
     ) -> dict[str, dict[str, dict[str, float]]]:
         """Success rate under every intervention on each of ``channels`` (see
-        ``analysis_interventions``) beside the real input: ``{channel: {condition: {kind:
+        ``analysis/interventions.py``) beside the real input: ``{channel: {condition: {kind:
         rate}}}``. One batch: every channel, condition and intervention stepped together on
         the same test episodes and exploration draws as ``recorded`` (the real greedy and
         ε-greedy runs; run here if not given). ``constants[(channel, condition)]`` is the

@@ -1,7 +1,7 @@
 """The trained agents off their training map: map seeds 0–9 beside the baselines, and the
 held-out maps (``HELD_OUT_MAP_SEEDS``, never used for any choice) with every model pair and
 every baseline, including the memoryless heuristics. Part of ``python evaluate.py``
-(``analysis_pipeline.evaluate_all`` calls :func:`evaluate_generalization` and
+(``analysis.pipeline.evaluate_all`` calls :func:`evaluate_generalization` and
 :func:`evaluate_held_out`)."""
 
 from __future__ import annotations
@@ -10,15 +10,16 @@ from functools import partial
 from typing import Any
 
 import numpy as np
-from analysis_episodes import EvaluationSetting
-from analysis_evaluator import GENERALIZATION_MAP_SEEDS, MultiAgentEvaluator, experiment_evaluator
-from analysis_runs import Experiment
-from analysis_stats import seed_statistics
-from baselines import POLICIES
-from grid_maps import generate_map
-from map_pool import HELD_OUT_MAP_SEEDS, baselines_on_held_out  # never used for a choice
+from grid_maps import HELD_OUT_MAP_SEEDS, generate_map
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, summarize
+
+from analysis.baselines import POLICIES
+from analysis.episodes import EvaluationSetting
+from analysis.evaluator import GENERALIZATION_MAP_SEEDS, MultiAgentEvaluator, experiment_evaluator
+from analysis.held_out import baselines_on_held_out  # never used for a choice
+from analysis.runs import Experiment
+from analysis.stats import seed_statistics
 
 CONDITIONS = ("greedy", "eps")
 

@@ -1,5 +1,5 @@
 """The Markdown comparison of Problem 2's evaluation (``comparison_table.md``), built from
-the results dict of ``analysis_pipeline.evaluate_all``, and the course's
+the results dict of ``analysis.pipeline.evaluate_all``, and the course's
 ``create_evaluation_report`` (any results dict as JSON)."""
 
 from __future__ import annotations
@@ -9,7 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from _atomic import temporary_path_for
-from analysis_failures import DECOMPOSITION, FAILURE_KINDS
+
+from analysis.failures import DECOMPOSITION, FAILURE_KINDS
 
 
 def _stat(stat: dict | None, digits: int = 3) -> str:

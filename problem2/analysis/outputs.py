@@ -21,8 +21,9 @@ from typing import Any
 
 import numpy as np
 from _atomic import temporary_path_for
-from analysis_messages import mean_message_per_cell
-from analysis_plots import (
+
+from analysis.messages import mean_message_per_cell
+from analysis.plots import (
     plot_failure_decomposition,
     plot_interventions,
     plot_measures,
@@ -31,7 +32,7 @@ from analysis_plots import (
     representative_traces,
     save_episode_gif,
 )
-from analysis_report import format_report
+from analysis.report import format_report
 
 CONDITIONS = ("greedy", "eps")
 

@@ -33,7 +33,7 @@ from grid_maps import (
 from multi_agent_env import REWARD_MODES, VectorMultiAgentEnv
 from rollout import EVAL_SEED, PolicyFn, evaluate_policy
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results" / "evaluation_results"
+RESULTS_DIR = Path(__file__).resolve().parent.parent / "results" / "evaluation_results"
 MAP_SEEDS = (DEFAULT_MAP_SEED, 0, 1, 2, 3, 4)
 
 

@@ -1,8 +1,8 @@
 """What ``python evaluate.py`` does: evaluate every trained (mode, seed) of every experiment
 found, aggregate over seeds, compare the modes pairwise, test every input channel causally,
-and test the main models on unseen and held-out maps (``analysis_generalization.py``).
+and test the main models on unseen and held-out maps (``analysis/generalization.py``).
 
-Aggregates over training seeds are ``analysis_stats.seed_statistics`` dicts: ``mean``,
+Aggregates over training seeds are ``analysis.stats.seed_statistics`` dicts: ``mean``,
 ``ci95`` (percentile bootstrap over seeds, 10 000 resamples), ``iqm``, ``n``, ``per_seed``.
 Within one seed the causal differences carry an episode-level paired bootstrap CI.
 """
@@ -17,17 +17,20 @@ from typing import Any
 
 import numpy as np
 import torch
-from analysis_episodes import episode_summary
-from analysis_evaluator import MultiAgentEvaluator, experiment_evaluator
-from analysis_failures import (
+from rollout import EVAL_SEED, EpisodeResults
+
+from analysis.baselines import POLICIES
+from analysis.episodes import episode_summary
+from analysis.evaluator import MultiAgentEvaluator, experiment_evaluator
+from analysis.failures import (
     DECOMPOSITION,
     FAILURE_DEFINITIONS,
     FAILURE_KINDS,
     failure_decomposition,
 )
-from analysis_generalization import evaluate_generalization, evaluate_held_out
-from analysis_information import MEASURES, communication_measures
-from analysis_interventions import (
+from analysis.generalization import evaluate_generalization, evaluate_held_out
+from analysis.information import MEASURES, communication_measures
+from analysis.interventions import (
     CHANNEL_INTERVENTIONS,
     CHANNEL_MODES,
     INTERVENTIONS,
@@ -37,19 +40,17 @@ from analysis_interventions import (
     mean_received,
     raising,
 )
-from analysis_messages import (
+from analysis.messages import (
     FEATURE_DESCRIPTIONS,
     message_correlations,
     message_distribution,
 )
-from analysis_runs import (
+from analysis.runs import (
     Experiment,
     best_seed,
     relative_models_dir,
 )
-from analysis_stats import BOOTSTRAP_RESAMPLES, mode_differences, seed_statistics
-from baselines import POLICIES
-from rollout import EVAL_SEED, EpisodeResults
+from analysis.stats import BOOTSTRAP_RESAMPLES, mode_differences, seed_statistics
 
 CONDITIONS = ("greedy", "eps")
 MODE_DIFFERENCES = (
@@ -249,7 +250,7 @@ def evaluate_experiment(
 
 def differences_by_pair(successes: dict[str, dict[str, np.ndarray]]) -> dict[str, dict]:
     """``{"<later>_minus_<earlier>": {condition: difference}}`` for every pair of modes
-    (``analysis_stats.mode_differences``: paired by test episodes, seeds resampled within
+    (``analysis.stats.mode_differences``: paired by test episodes, seeds resampled within
     each mode); empty with fewer than two modes."""
     by_condition = {
         name: mode_differences({mode: s[name] for mode, s in successes.items()})

@@ -28,7 +28,7 @@ import torch
 from grid_maps import DEFAULT_MAP_SEED, generate_map, load_map
 from models import OBSERVATION_DIM, load_policy
 
-PROBLEM2 = Path(__file__).resolve().parent
+PROBLEM2 = Path(__file__).resolve().parent.parent
 DEFAULT_ROOT = PROBLEM2 / "results"
 MODES = ("independent", "comm", "full")
 NUM_ACTIONS = 5
