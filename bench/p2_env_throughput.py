@@ -18,7 +18,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "problem2"))
-from multi_agent_env import DEFAULT_MAP_SEED, MultiAgentEnv, VectorMultiAgentEnv  # noqa: E402
+from grid_maps import DEFAULT_MAP_SEED
+from multi_agent_env import MultiAgentEnv
+from vector_env import VectorMultiAgentEnv
 
 VECTOR_SIZES = (1, 16, 64, 256, 1024)
 PREDRAWN = 64  # distinct action/message arrays cycled through

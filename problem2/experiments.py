@@ -29,15 +29,17 @@ from typing import Any
 
 import numpy as np
 import torch
-from _atomic import (
+from batch_io import (
+    ProgressLine,
     first_missing_ancestor,
     remove_if_empty,
     remove_stale_temporaries,
+    run_jobs,
     temporary_path_for,
     write_json_atomic,
 )
-from batch_workers import ProgressLine, run_jobs
-from multi_agent_env import MultiAgentEnv, generate_map, save_map
+from grid_maps import generate_map, save_map
+from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, VALIDATION_SEED, select_best
 from train_config import DEFAULT_OUTPUT_DIR, SettingError, TrainConfig
 from trainer import MultiAgentTrainer

@@ -1,5 +1,5 @@
-"""Q-networks with a message head, observation masks of the ablations, and TorchScript
-export of a trained network together with its mask.
+"""Q-networks with a message head (one agent's, and both agents' stacked for training),
+observation masks of the ablations, and TorchScript export of a network with its mask.
 
 Both networks follow the assignment's formula with one hidden layer:
     h = ReLU(W1 x + b1),   Q = W_q h + b_q  (or the dueling form),   m = sigmoid(w_m·h + b_m)
@@ -19,29 +19,32 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _atomic import temporary_path_for
+from batch_io import temporary_path_for
 from torch import nn
 
 OBSERVATION_DIM = 11  # the default 3 x 3 window: 9 cells, message, distance
 MESSAGE_INDEX = 9  # the partner's last message (w² for a w x w window)
 DISTANCE_INDEX = 10  # normalised distance between the agents (w² + 1)
-MODE_HIDES = {"independent": 2, "comm": 1, "full": 0}  # trailing elements each ablation zeroes
+# The observation elements each ablation zeroes (for the 3 x 3 window; for a w x w window
+# the message and distance are elements w² and w² + 1, the same distance from the end).
+MASKED_INPUTS = {
+    "independent": (MESSAGE_INDEX, DISTANCE_INDEX),  # patch only
+    "comm": (DISTANCE_INDEX,),  # patch + message
+    "full": (),  # patch + message + distance
+}
 
 
 def _mask(mode: str, obs_dim: int) -> np.ndarray:
     mask = np.ones(obs_dim, dtype=np.float32)
-    mask[obs_dim - MODE_HIDES[mode] :] = 0.0
+    for index in MASKED_INPUTS[mode]:
+        mask[index + obs_dim - OBSERVATION_DIM] = 0.0
     mask.flags.writeable = False
     return mask
 
 
 # Multiplicative masks (11,) float32 of the three ablations, used wherever a network sees
 # an observation: acting, both TD passes, evaluation, and inside exported policies.
-OBSERVATION_MASKS: dict[str, np.ndarray] = {
-    "independent": _mask("independent", OBSERVATION_DIM),  # patch only
-    "comm": _mask("comm", OBSERVATION_DIM),  # patch + message
-    "full": _mask("full", OBSERVATION_DIM),  # patch + message + distance
-}
+OBSERVATION_MASKS = {mode: _mask(mode, OBSERVATION_DIM) for mode in MASKED_INPUTS}
 
 
 def observation_mask(mode: str, obs_dim: int = OBSERVATION_DIM) -> np.ndarray:
@@ -50,8 +53,8 @@ def observation_mask(mode: str, obs_dim: int = OBSERVATION_DIM) -> np.ndarray:
     An observation of a w x w window has w² + 2 elements: the patch, then the message
     (index w²) and the distance (index w² + 1); ``independent`` zeroes both, ``comm``
     the distance, ``full`` nothing."""
-    if mode not in MODE_HIDES:
-        raise ValueError(f"unknown mode {mode!r}; expected one of {sorted(MODE_HIDES)}")
+    if mode not in MASKED_INPUTS:
+        raise ValueError(f"unknown mode {mode!r}; expected one of {sorted(MASKED_INPUTS)}")
     if obs_dim == OBSERVATION_DIM:
         return OBSERVATION_MASKS[mode]
     if obs_dim < 3:
@@ -114,6 +117,81 @@ class DuelingDQN(MessagingQNetwork):
         advantages = self.advantage_head(hidden)
         q_values = self.value_head(hidden) + advantages - advantages.mean(dim=-1, keepdim=True)
         return q_values, self.message_head(hidden)
+
+
+class PairedQNetworks(nn.Module):
+    """Both agents' networks as one stacked module: each agent keeps its own weights
+    (independent learners), and one batched matrix product evaluates both.
+
+    Parameters, agent axis first: ``hidden_weight`` [2, H, D], ``hidden_bias`` [2, 1, H],
+    ``head_weight`` [2, K, H], ``head_bias`` [2, 1, K]. The K head rows are the
+    ``num_actions`` Q-values (advantages for the dueling form), then the state value for
+    the dueling form, then the message logit. :meth:`agent` turns one agent's slice back
+    into a plain :class:`AgentDQN` / :class:`DuelingDQN` with identical outputs (for export
+    and for the interface methods that take one network).
+    """
+
+    def __init__(
+        self, input_dim: int = 11, hidden_dim: int = 64, num_actions: int = 5, dueling: bool = False
+    ) -> None:
+        super().__init__()
+        self.input_dim, self.hidden_dim, self.num_actions = input_dim, hidden_dim, num_actions
+        self.dueling = dueling
+        self.head_dim = num_actions + (2 if dueling else 1)
+        self.hidden_weight = nn.Parameter(torch.empty(2, hidden_dim, input_dim))
+        self.hidden_bias = nn.Parameter(torch.empty(2, 1, hidden_dim))
+        self.head_weight = nn.Parameter(torch.empty(2, self.head_dim, hidden_dim))
+        self.head_bias = nn.Parameter(torch.empty(2, 1, self.head_dim))
+        # The initial weights of two interface networks (PyTorch's nn.Linear default).
+        self.load_agents([self._network_class()(input_dim, hidden_dim, num_actions) for _ in "AB"])
+
+    def _network_class(self) -> type[MessagingQNetwork]:
+        return DuelingDQN if self.dueling else AgentDQN
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``x`` [2, B, D] (A's inputs, then B's) -> (Q [2, B, A], message logit [2, B, 1])."""
+        hidden = torch.baddbmm(self.hidden_bias, x, self.hidden_weight.transpose(1, 2)).relu_()
+        heads = torch.baddbmm(self.head_bias, hidden, self.head_weight.transpose(1, 2))
+        logits = heads[..., -1:]
+        if not self.dueling:
+            return heads[..., : self.num_actions], logits
+        advantages = heads[..., : self.num_actions]
+        value = heads[..., self.num_actions : self.num_actions + 1]
+        return value + advantages - advantages.mean(dim=-1, keepdim=True), logits
+
+    @torch.no_grad()
+    def agent(self, index: int) -> MessagingQNetwork:
+        """Agent ``index``'s network as a standalone AgentDQN / DuelingDQN (a copy)."""
+        network = self._network_class()(self.input_dim, self.hidden_dim, self.num_actions)
+        network.hidden.weight.copy_(self.hidden_weight[index])
+        network.hidden.bias.copy_(self.hidden_bias[index, 0])
+        for head, rows in self._head_rows(network).items():
+            head.weight.copy_(self.head_weight[index, rows])
+            head.bias.copy_(self.head_bias[index, 0, rows])
+        return network
+
+    @torch.no_grad()
+    def load_agents(self, networks: list[MessagingQNetwork]) -> None:
+        """Copy two standalone networks into the stacked weights."""
+        for index, network in enumerate(networks):
+            self.hidden_weight[index].copy_(network.hidden.weight)
+            self.hidden_bias[index, 0].copy_(network.hidden.bias)
+            for head, rows in self._head_rows(network).items():
+                self.head_weight[index, rows].copy_(head.weight)
+                self.head_bias[index, 0, rows].copy_(head.bias)
+
+    def _head_rows(self, network: MessagingQNetwork) -> dict[nn.Linear, slice]:
+        """Which rows of the stacked head belong to which head of ``network``."""
+        actions = slice(0, self.num_actions)
+        message = slice(self.head_dim - 1, self.head_dim)
+        if self.dueling:
+            value = slice(self.num_actions, self.num_actions + 1)
+            return {
+                network.advantage_head: actions,
+                network.value_head: value,
+                network.message_head: message,
+            }
+        return {network.q_head: actions, network.message_head: message}
 
 
 @contextmanager

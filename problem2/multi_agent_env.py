@@ -7,7 +7,7 @@ previous step and the normalised distance between the two agents.
 ``vector_env.VectorMultiAgentEnv`` holds the only implementation of the dynamics,
 observations and rewards, stepping N copies of one map with NumPy arrays. ``MultiAgentEnv``
 is the course interface: a thin N = 1 view of it. Maps (generation, validation, JSON files)
-live in ``grid_maps.py``; both are re-exported here.
+live in ``grid_maps.py``.
 
 Observation of one agent (length ``obs_window² + 2``, 11 for the default window of 3):
   0..8  the patch, row-major (0 free, 1 obstacle, 2 target, -1 off-grid; agents not drawn)
@@ -21,51 +21,8 @@ Positions are (row, col), row 0 at the top.
 from __future__ import annotations
 
 import numpy as np
-from grid_maps import (
-    ACTION_DELTAS,
-    ACTION_NAMES,
-    DEFAULT_MAP_SEED,
-    FREE,
-    NUM_ACTIONS,
-    OBSTACLE,
-    OFF_GRID,
-    TARGET,
-    check_grid,
-    generate_map,
-    load_map,
-    save_map,
-    target_distances,
-)
-from vector_env import (
-    ARRIVAL_REWARD,
-    BOTH_ON_TARGET_REWARD,
-    REWARD_MODES,
-    STEP_REWARD,
-    VectorMultiAgentEnv,
-)
-
-# Re-exported: ``from multi_agent_env import generate_map, VectorMultiAgentEnv`` works.
-__all__ = [
-    "ARRIVAL_REWARD",
-    "BOTH_ON_TARGET_REWARD",
-    "REWARD_MODES",
-    "STEP_REWARD",
-    "ACTION_DELTAS",
-    "ACTION_NAMES",
-    "DEFAULT_MAP_SEED",
-    "FREE",
-    "NUM_ACTIONS",
-    "OBSTACLE",
-    "OFF_GRID",
-    "TARGET",
-    "MultiAgentEnv",
-    "VectorMultiAgentEnv",
-    "check_grid",
-    "generate_map",
-    "load_map",
-    "save_map",
-    "target_distances",
-]
+from grid_maps import NUM_ACTIONS
+from vector_env import VectorMultiAgentEnv
 
 
 def _single_number(value: object, name: str) -> int | float:
@@ -160,7 +117,13 @@ class MultiAgentEnv:
     ) -> tuple[tuple[np.ndarray, np.ndarray], float, bool]:
         """One joint step: ((obs_A, obs_B), team reward, done). ``done`` is True when both
         agents stand on the target or ``max_steps`` steps have passed. Messages are clipped
-        into [0, 1]."""
+        into [0, 1].
+
+        The team reward, one value per step (``vector_env.team_rewards``): +10 when both
+        agents stand on the target (the episode ends); with the default ``per_step`` +2 on
+        every step on which exactly one stands on it; with ``arrival`` (what the trainer
+        learns from) +2 on the step on which an agent first reaches it in the episode;
+        -0.1 otherwise."""
         actions = np.array([[_action(action_A, "action_A"), _action(action_B, "action_B")]])
         messages = np.array([[_message(comm_A, "comm_A"), _message(comm_B, "comm_B")]])
         obs, rewards, terminated, truncated, _ = self._vector.step(actions, messages)

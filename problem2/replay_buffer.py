@@ -1,15 +1,10 @@
 """Experience replay for the two agents' joint transitions.
 
 ``ReplayBuffer`` samples uniformly; ``PrioritizedReplayBuffer`` samples in proportion to
-priority^alpha from a sum-tree. Both store a joint transition as one float32 row of a
-preallocated matrix, created at the first push with the per-transition shapes it brings
-(so 10- and 11-dim observations both work) and written as a ring; each field is a block
-of columns (:attr:`ReplayBuffer.layout`), so that a learner can draw a whole batch with one
-gather (:meth:`ReplayBuffer.sample_rows`), and a producer that packs rows in that layout
-can store them with one write (:meth:`ReplayBuffer.push_rows`). Besides the ten required
-fields a buffer may store further named arrays (e.g. the partner's previous observation,
-for DIAL): whatever extra keywords the first push brings, every later push must bring too.
-Every field is stored as float32 (exact for the actions) and read back in its dtype.
+priority^alpha from a sum-tree. A joint transition is (s_A, s_B, a_A, a_B, c_A, c_B, r,
+s'_A, s'_B, done) plus whatever extras the learner stores with it (the trainer: each
+agent's previous observation for DIAL, the n-step discount, the observations one step
+before s'). The observation size is whatever the first push brings.
 """
 
 from __future__ import annotations
@@ -95,14 +90,23 @@ def check_transitions(arrays: dict[str, np.ndarray]) -> None:
 
 
 class ReplayBuffer:
-    """Uniform replay over the last ``capacity`` transitions; ``seed`` seeds sampling."""
+    """Uniform replay over the last ``capacity`` joint transitions; ``seed`` seeds sampling.
+
+    One storage: a float32 matrix (capacity, row width), a ring, each transition one row and
+    each field a block of its columns (:attr:`layout`; A's and B's observations side by side,
+    so a learner can view both as one (2, B, D) block). The fields and their shapes are
+    fixed by the first push: the ten required and any extras it brings (e.g. DIAL's
+    previous observations), which every later push must bring too. One way in,
+    :meth:`push_batch`; one way to draw, :meth:`sample_rows` (a gather of whole rows);
+    :meth:`unpack` turns rows back into fields in their dtypes. The course's :meth:`push`
+    and :meth:`sample` are built on them.
+    """
 
     def __init__(self, capacity: int = 10000, seed: int | None = None) -> None:
         self.capacity = _positive_int(capacity, "capacity")
         self._rng = np.random.default_rng(seed)
         self._rows = np.zeros((0, 0), np.float32)  # (capacity, row width) after the first push
-        self._storage: dict[str, np.ndarray] = {}  # each field's columns, views of _rows
-        self._dtypes: dict[str, np.dtype] = {}
+        self._shapes: dict[str, tuple[int, ...]] = {}  # each field's per-transition shape
         self.layout: dict[str, slice] = {}  # each field's columns in a row
         self._size = 0
         self._next_slot = 0
@@ -113,7 +117,7 @@ class ReplayBuffer:
     @property
     def field_names(self) -> tuple[str, ...]:
         """The ten required fields, then the extras (empty before the first push)."""
-        return tuple(self._storage)
+        return tuple(self._shapes)
 
     # fmt: off
     def push(self, state_A, state_B, action_A, action_B, comm_A, comm_B, reward,
@@ -144,147 +148,89 @@ class ReplayBuffer:
             )
         if validate:
             check_transitions(arrays)
-        if not self._storage:
-            dtypes = {name: value.dtype for name, value in arrays.items()}
-            self.allocate({name: value.shape[1:] for name, value in arrays.items()}, dtypes)
+        if not self._shapes:
+            self._allocate({name: value.shape[1:] for name, value in arrays.items()})
         self._check_fields(arrays)
         batch_size = min(lengths.pop(), self.capacity)
-        slots, rows = self._claim(batch_size)
-        for name, value in arrays.items():
-            self._storage[name][rows] = value[-batch_size:]
-        self._stored(slots)
-        return slots
-
-    def push_rows(self, rows: np.ndarray) -> np.ndarray:
-        """Store B transitions given as whole rows (B, row width), packed in the columns of
-        :attr:`layout` (which :meth:`allocate` or the first push fixed), e.g. by
-        :class:`n_step.NStepWindow`. Not checked beyond their shape. Returns the slots
-        written, as :meth:`push_batch` does."""
-        if not self.layout:
-            raise ValueError("push_rows needs a buffer whose columns are fixed: allocate() first")
-        if rows.ndim != 2 or rows.shape[1] != self._rows.shape[1] or not len(rows):
-            raise ValueError(
-                f"rows must have shape (B, {self._rows.shape[1]}) with B > 0, got {rows.shape}"
-            )
-        batch_size = min(len(rows), self.capacity)
-        slots, where = self._claim(batch_size)
-        self._rows[where] = rows[-batch_size:]
-        self._stored(slots)
-        return slots
-
-    def _claim(self, batch_size: int) -> tuple[np.ndarray, slice | np.ndarray]:
-        """The next ``batch_size`` slots of the ring, as an array and as an index of the
-        rows (a slice where they do not wrap: faster); counts them as stored."""
         slots = (self._next_slot + np.arange(batch_size)) % self.capacity
         end = self._next_slot + batch_size
-        rows = slice(self._next_slot, end) if end <= self.capacity else slots
+        rows = slice(self._next_slot, end) if end <= self.capacity else slots  # no wrap: faster
+        for name, value in arrays.items():
+            self._rows[rows, self.layout[name]] = value[-batch_size:].reshape(batch_size, -1)
         self._next_slot = int(slots[-1] + 1) % self.capacity
         self._size = min(self._size + batch_size, self.capacity)
-        return slots, rows
+        self._stored(slots)
+        return slots
 
     def _stored(self, slots: np.ndarray) -> None:
         """Called with the slots of every push (prioritised replay sets their priority)."""
 
-    def allocate(
-        self, shapes: dict[str, tuple[int, ...]], dtypes: dict[str, np.dtype] | None = None
-    ) -> dict[str, slice]:
-        """Fix the fields of an empty buffer: the ten required and any extras, by their
-        per-transition ``shapes``; ``dtypes`` the extras' (default float32; the required
-        fields have theirs). The first push calls this; a learner that packs rows itself
-        calls it first. Returns :attr:`layout`."""
-        if self._storage:
-            raise ValueError("the buffer's fields are fixed already (by the first push)")
-        missing = [name for name in TRANSITION_FIELDS if name not in shapes]
-        if missing:
-            raise ValueError(f"allocate is missing required fields {missing}")
+    def _allocate(self, shapes: dict[str, tuple[int, ...]]) -> None:
+        """Fix the fields by their per-transition ``shapes`` and their columns."""
         extras = sorted(set(shapes) - set(TRANSITION_FIELDS))
-        names = (*TRANSITION_FIELDS, *extras)
+        self._shapes = {name: shapes[name] for name in (*TRANSITION_FIELDS, *extras)}
         columns = [name for name in PAIRED_FIELDS if name in shapes]
-        columns += [name for name in names if name not in PAIRED_FIELDS]
+        columns += [name for name in self._shapes if name not in PAIRED_FIELDS]
         width = 0
         for name in columns:
             size = int(np.prod(shapes[name], dtype=np.int64))
             self.layout[name] = slice(width, width + size)
             width += size
         self._rows = np.zeros((self.capacity, width), np.float32)
-        for name in names:  # the field order of get() and field_names
-            if name in _INTEGER_FIELDS:
-                self._dtypes[name] = np.dtype(np.int64)
-            elif name in TRANSITION_FIELDS:
-                self._dtypes[name] = np.dtype(np.float32)
-            else:
-                self._dtypes[name] = np.dtype((dtypes or {}).get(name, np.float32))
-            columns_of_name = self._rows[:, self.layout[name]]  # a view: writes reach the rows
-            self._storage[name] = np.reshape(
-                columns_of_name, (self.capacity, *shapes[name]), copy=False
-            )
-        return self.layout
 
     def _check_fields(self, arrays: dict[str, np.ndarray]) -> None:
-        if set(arrays) != set(self._storage):
+        if set(arrays) != set(self._shapes):
             raise ValueError(
                 f"fields {sorted(arrays)} differ from those of the first push "
-                f"{sorted(self._storage)}"
+                f"{sorted(self._shapes)}"
             )
         for name, value in arrays.items():
-            if value.shape[1:] != self._storage[name].shape[1:]:
+            if value.shape[1:] != self._shapes[name]:
                 raise ValueError(
                     f"{name} has per-transition shape {value.shape[1:]}, the "
-                    f"buffer holds {self._storage[name].shape[1:]}"
+                    f"buffer holds {self._shapes[name]}"
                 )
-
-    def _check_batch_size(self, batch_size: int) -> int:
-        batch_size = _positive_int(batch_size, "batch_size")
-        if batch_size > self._size:
-            raise ValueError(
-                f"cannot sample {batch_size} transitions: the buffer holds {self._size}"
-            )
-        return batch_size
 
     def _draw_indices(self, batch_size: int) -> np.ndarray:
         return self._rng.integers(self._size, size=batch_size)
-
-    def get(self, indices: np.ndarray) -> dict[str, np.ndarray]:
-        """Every field (required and extras) at slots ``indices`` (B,), as copies."""
-        return {
-            name: values[indices].astype(self._dtypes[name], copy=False)
-            for name, values in self._storage.items()
-        }
 
     def _weights(self, indices: np.ndarray) -> np.ndarray:
         """Importance weights (B,) float32 of a drawn sample: all 1 for uniform replay."""
         return np.ones(len(indices), dtype=np.float32)
 
-    def sample_rows(self, batch_size: int, out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Draw ``batch_size`` slots as :meth:`sample_batch` does and copy their whole rows
-        into ``out`` (batch_size, row width) float32 (one gather; :attr:`layout` gives each
-        field's columns). Returns (importance weights (B,) float32, slots (B,))."""
-        indices = self._draw_indices(self._check_batch_size(batch_size))
-        np.take(self._rows, indices, axis=0, out=out, mode="clip")  # valid: unbuffered, faster
-        return self._weights(indices), indices
+    def sample_rows(
+        self, batch_size: int, out: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Draw ``batch_size`` slots (with replacement) and gather their whole rows, into
+        ``out`` (batch_size, row width) float32 if given. Returns (rows, importance weights
+        (B,) float32 — all 1 for uniform replay —, slots (B,))."""
+        batch_size = _positive_int(batch_size, "batch_size")
+        if batch_size > self._size:
+            raise ValueError(
+                f"cannot sample {batch_size} transitions: the buffer holds {self._size}"
+            )
+        indices = self._draw_indices(batch_size)
+        rows = np.take(self._rows, indices, axis=0, out=out, mode="clip")  # valid: faster
+        return rows, self._weights(indices), indices
 
-    def sample_batch(
-        self, batch_size: int, out: dict[str, np.ndarray] | None = None
-    ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
-        """(all fields as in :meth:`get`, importance weights (B,) float32 — all 1 here —,
-        slots (B,)): one call that serves both buffer types.
+    def unpack(self, rows: np.ndarray) -> dict[str, np.ndarray]:
+        """The fields (required and extras) of packed ``rows`` (B, row width), as copies:
+        actions int64, everything else float32."""
+        return {
+            name: rows[:, self.layout[name]]
+            .reshape(len(rows), *shape)
+            .astype(np.int64 if name in _INTEGER_FIELDS else np.float32)
+            for name, shape in self._shapes.items()
+        }
 
-        ``out``: optional arrays to fill in place instead, by field name (any subset of
-        :attr:`field_names`, each (B, ...) of the field's dtype); they are returned as the
-        batch."""
-        indices = self._draw_indices(self._check_batch_size(batch_size))
-        if out is None:
-            batch = self.get(indices)
-        else:
-            for name, array in out.items():
-                array[...] = self._storage[name][indices]
-            batch = out
-        return batch, self._weights(indices), indices
+    def get(self, indices: np.ndarray) -> dict[str, np.ndarray]:
+        """Every field at slots ``indices`` (B,), as in :meth:`unpack`."""
+        return self.unpack(self._rows[indices])
 
     def sample(self, batch_size: int) -> tuple[np.ndarray, ...]:
         """Uniform sample with replacement: the ten required arrays in interface order,
         states (B, obs_dim) float32, actions (B,) int64, the rest (B,) float32."""
-        batch, _, _ = self.sample_batch(batch_size)
+        batch = self.unpack(self.sample_rows(batch_size)[0])
         return tuple(batch[name] for name in TRANSITION_FIELDS)
 
 
@@ -380,7 +326,8 @@ class PrioritizedReplayBuffer(ReplayBuffer):
     def sample(self, batch_size: int) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray]:
         """(the ten required arrays as in ReplayBuffer.sample, weights (B,) float32,
         slots (B,) int64 to pass back to :meth:`update_priorities`)."""
-        batch, weights, indices = self.sample_batch(batch_size)
+        rows, weights, indices = self.sample_rows(batch_size)
+        batch = self.unpack(rows)
         return tuple(batch[name] for name in TRANSITION_FIELDS), weights, indices
 
     def update_priorities(self, indices: np.ndarray, priorities: np.ndarray) -> None:

@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from multi_agent_env import VectorMultiAgentEnv
+from vector_env import VectorMultiAgentEnv
 
 PolicyFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -199,3 +199,124 @@ def evaluate_policy(
 ) -> dict[str, float | int | None]:
     """:func:`run_episodes` then :func:`summarize`."""
     return summarize(run_episodes(env, policy_fn, num_episodes, seed))
+
+
+# ------------------------------------------------ collecting experience (learning)
+class NStepWindow:
+    """Turns the steps of N parallel episodes into n-step transitions.
+
+    The transition that starts at step t of an episode carries the discounted reward
+    R = r_t + γ r_{t+1} + ... + γ^(k-1) r_{t+k-1}, the observation s_{t+k} it bootstraps
+    from (``next_state_*``), the observation s_{t+k-1} one step before it (``last_state_*``,
+    whose sender's message s_{t+k} holds; only for n > 1, where it differs from the state),
+    and the discount γ^k, or 0 if the episode terminated within those k steps. k is n, or
+    fewer where the episode ends (terminal or cut off) before t + n. A transition leaves the
+    window at step t + k - 1; with n = 1 every step is its own transition at once.
+
+    The caller gives the fields known when a transition starts (state, action, message,
+    ...), each (N, ...); the window adds ``reward``, ``next_state_A``/``_B``, ``done`` and
+    ``discount`` (and ``last_state_A``/``_B`` for n > 1).
+
+    Slot layout, e.g. n = 3 steps and N = 2 copies: the transition that starts at step s of
+    the run in copy c is slot (s % 3) * 2 + c of each field's ring (3 * 2, ...)::
+
+        slot            0    1    2    3    4    5
+        row (s % 3)     0    0    1    1    2    2
+        copy c          0    1    0    1    0    1
+        start step s  0, 3 0, 3 1, 4 1, 4 2, 5 2, 5
+
+    At step 2 the transitions of step 0 are complete (k = 3, slots 0 and 1) and leave, so
+    step 3 may reuse row 0. If copy 1 is cut off at step 3, that step returns, oldest start
+    first and then by copy: copy 0 from step 1 (slot 2, k = 3), copy 1 from steps 1, 2 and 3
+    (slots 3, 5 and 1; k = 3, 2 and 1).
+    """
+
+    def __init__(self, n_step: int, gamma: float, n_envs: int) -> None:
+        if isinstance(n_step, bool) or not isinstance(n_step, int) or n_step < 1:
+            raise ValueError(f"n_step must be a positive integer, got {n_step!r}")
+        self.n_step, self.gamma, self.n_envs = n_step, float(gamma), n_envs
+        self.discounts = np.array([self.gamma**k for k in range(n_step + 1)])  # γ^k
+        self.started: dict[str, np.ndarray] = {}  # each start field's ring (n * N, ...)
+        self.returns = np.zeros((n_step, n_envs))  # discounted rewards so far (float64)
+        self.steps_added = 0
+        self.in_episode = np.zeros(n_envs, np.int64)  # window steps of each running episode
+
+    def add(
+        self, start: dict[str, np.ndarray], reward: np.ndarray, next_obs: np.ndarray,
+        obs: np.ndarray, terminated: np.ndarray, finished: np.ndarray,
+    ) -> dict[str, np.ndarray]:  # fmt: skip
+        """One step of the N episodes.
+
+        Args:
+            start: the fields of the transitions starting now, each (N, ...).
+            reward: (N,) this step's rewards.
+            next_obs, obs: (N, 2, D) the observations after and before the step.
+            terminated, finished: (N,) bool; finished = terminated or cut off.
+
+        Returns the K transitions that are complete, oldest start first (by copy within
+        one start step), each field (K, ...); K may be 0."""
+        n, copies, row = self.n_step, self.n_envs, self.steps_added % self.n_step
+        if not self.started:  # the first add: one ring per field
+            self.started = {
+                name: np.zeros((n * copies, *values.shape[1:]), values.dtype)
+                for name, values in start.items()
+            }
+        held = min(self.steps_added, n - 1)  # earlier steps still in the window
+        older = (row - np.arange(1, held + 1)) % n  # their rows, newest first (age 1, 2, ...)
+        self.returns[older] += self.discounts[1 : held + 1, None] * reward
+        self.returns[row] = reward
+        for name, values in start.items():
+            self.started[name][row * copies : (row + 1) * copies] = values
+        self.steps_added += 1
+        self.in_episode = np.minimum(self.in_episode + 1, n)
+        # Steps since each transition began (oldest first), and which are due now.
+        lags = np.arange(held, -1, -1)[:, None]
+        due = (lags < self.in_episode) & (finished | (lags == n - 1))
+        self.in_episode[finished] = 0
+        lag, env = np.nonzero(due)  # in order: oldest start first, then by copy
+        lag = held - lag
+        slots = (row - lag) % n * copies + env
+        done = terminated[env]
+        complete = {name: ring[slots] for name, ring in self.started.items()}
+        complete |= {
+            "reward": self.returns.reshape(-1)[slots].astype(np.float32),
+            "next_state_A": next_obs[env, 0], "next_state_B": next_obs[env, 1],
+            "done": done.astype(np.float32),
+            "discount": np.where(done, 0.0, self.discounts[lag + 1]).astype(np.float32),
+        }  # fmt: skip
+        if n > 1:
+            complete |= {"last_state_A": obs[env, 0], "last_state_B": obs[env, 1]}
+        return complete
+
+
+@dataclass
+class Rollout:
+    """N environment copies being played, and what the learner tracks for each."""
+
+    env: VectorMultiAgentEnv
+    obs: np.ndarray  # (N, 2, D) current observations of A and B
+    prev_obs: np.ndarray  # (N, 2, D) observations one step earlier (zeros at an episode start)
+    has_prev: np.ndarray  # (N,) float32, 1.0 where prev_obs is real
+    returns: np.ndarray  # (N,) return of the running episodes
+    window: NStepWindow  # the steps whose n-step transitions are not complete yet
+
+    @classmethod
+    def start(cls, env: VectorMultiAgentEnv, n_step: int = 1, gamma: float = 0.99) -> Rollout:
+        obs = env.reset()
+        n = env.n_envs
+        zeros = np.zeros(n, np.float32)
+        return cls(env, obs, np.zeros_like(obs), zeros, np.zeros(n), NStepWindow(n_step, gamma, n))
+
+    def advance(
+        self, next_obs: np.ndarray, rewards: np.ndarray, finished: np.ndarray
+    ) -> np.ndarray:
+        """Move on to ``next_obs``; return the returns of the episodes that ``finished``."""
+        self.returns += rewards
+        finished_returns = self.returns[finished].copy()
+        self.returns[finished] = 0.0
+        self.prev_obs = np.where(finished[:, None, None], 0.0, self.obs).astype(
+            np.float32, copy=False
+        )
+        self.has_prev = (~finished).astype(np.float32)
+        self.obs = next_obs
+        return finished_returns

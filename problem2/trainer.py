@@ -1,51 +1,59 @@
 """Independent DQN for two agents that must meet on a target, with a learned message.
 
-Each agent has its own network (a Q head over 5 moves and a sigmoid message head)
-and learns from a shared replay of joint transitions with a Huber TD loss summed
-over both agents, target networks, a Double-DQN target and gradient clipping.
-The message is trained DIAL-style: at update time the message that arrived in the
-receiver's observation is recomputed by the sender's online network from the
-sender's previous observation (with noise on its logit), so the receiver's TD loss
-reaches the sender's message head. The ablation modes only differ in the input
-mask (:func:`apply_observation_mask`), used wherever a network sees an observation.
+Each agent has its own network (a Q head over 5 moves and a sigmoid message head) and
+learns from a shared replay of joint transitions with a Huber TD loss summed over both
+agents, target networks, a Double-DQN target and gradient clipping. The message is trained
+DIAL-style: at update time the message that arrived in the receiver's observation is
+recomputed by the sender's online network from the sender's previous observation (with
+noise on its logit), so the receiver's TD loss reaches the sender's message head. The
+ablation modes differ only in the input mask (:func:`apply_observation_mask`), used
+wherever a network sees an observation.
 
-:meth:`MultiAgentTrainer.train` is the algorithm, step by step; :meth:`td_loss` is the
-loss. For the plain network the update computes the gradient of that loss by hand
-(:mod:`td_update`, several times faster on a CPU, held equal to autograd by a test).
-Acting is in :mod:`trainer_acting`, the evaluations and outputs in :mod:`trainer_outputs`.
+:class:`MultiAgentTrainer` reads in DQN order: act (ε-greedy) → step → store → update
+(:meth:`~MultiAgentTrainer.td_loss` → ``backward()`` → ``clip_grad_norm_`` → Adam) →
+target sync → schedules → evaluate and log.
 """
 
 from __future__ import annotations
 
+import csv
+import math
 from collections import deque
 from collections.abc import Callable
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from models import observation_mask
-from multi_agent_env import NUM_ACTIONS, MultiAgentEnv, VectorMultiAgentEnv
-from paired_networks import FlatAdam, PairedQNetworks
-from replay_buffer import (
-    STATE_FIELDS,
-    TRANSITION_FIELDS,
-    PrioritizedReplayBuffer,
-    ReplayBuffer,
+from grid_maps import NUM_ACTIONS, training_maps, validation_maps
+from models import PairedQNetworks, export_policy, observation_mask
+from multi_agent_env import MultiAgentEnv
+from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
+from rollout import (
+    EVAL_EPSILON,
+    EVAL_SEED,
+    VALIDATION_SEED,
+    PolicyFn,
+    Rollout,
+    evaluate_policy,
+    select_best,
 )
-from rollout import EVAL_EPSILON
-from td_update import FastTDGradient, TransitionBatch
 from train_config import TrainConfig
-from trainer_acting import Rollout, TrainerActing
-from trainer_outputs import Checkpoint, TrainerOutputs
+from vector_env import VectorMultiAgentEnv
+
+LOG_FIELDS = (
+    "env_steps", "episodes", "updates", "epsilon", "loss", "mean_q", "train_return",
+    "train_success", "eval_success_greedy", "eval_success_eps", "eval_return_greedy",
+    "eval_return_eps", "eval_steps_greedy", "eval_steps_eps",
+)  # fmt: skip
 
 
 def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndarray | torch.Tensor:
-    """Zero the inputs that ablation ``mode`` hides: ``independent`` the message and the
-    distance (the last two elements, 9 and 10 for a 3 x 3 window), ``comm`` the distance,
-    ``full`` none. Any leading shape (..., obs_dim)."""
+    """Zero the inputs that ablation ``mode`` hides (``models.MASKED_INPUTS``):
+    ``independent`` the message and the distance (elements 9 and 10 for a 3 x 3 window),
+    ``comm`` the distance, ``full`` none. Any leading shape (..., obs_dim)."""
     mask = observation_mask(mode, obs.shape[-1])
     if isinstance(obs, torch.Tensor):
         return obs * torch.tensor(mask)
@@ -53,30 +61,78 @@ def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndar
 
 
 def config_from(args: Any) -> TrainConfig:
-    """A TrainConfig from a TrainConfig or any namespace (e.g. the course skeleton's, whose
-    ``grid_size`` is a list and whose ``mode`` may be missing or ``all``: one trainer trains
-    ``full`` then; without ``output_dir`` it writes under ``results/`` of the current folder).
-    Unknown attributes are ignored; the map comes from the environment."""
+    """The run's TrainConfig: a TrainConfig as given (its maker validated it: the CLI or
+    ``experiments.run_experiments``), or one built and validated from any namespace (e.g.
+    the course skeleton's, whose ``grid_size`` is a list and whose ``mode`` may be missing
+    or ``all``: one trainer trains ``full`` then; without ``output_dir`` it writes under
+    ``results/`` of the current folder). Unknown attributes are ignored; the map comes from
+    the environment."""
     if isinstance(args, TrainConfig):
-        settings = args.to_dict()
-    else:
-        known = {f.name for f in fields(TrainConfig)}
-        settings = {k: v for k, v in vars(args).items() if k in known and v is not None}
+        return args
+    known = {f.name for f in fields(TrainConfig)}
+    settings = {k: v for k, v in vars(args).items() if k in known and v is not None}
     if settings.get("mode", "all") == "all":
         settings["mode"] = "full"
-    # Like the skeleton, a namespace without output_dir writes under ./results.
-    settings.setdefault("output_dir", "results")
+    settings.setdefault("output_dir", "results")  # like the skeleton
     settings.pop("grid_size", None)  # the trainer trains on env's grid
     return TrainConfig(**settings).validate()
 
 
-class MultiAgentTrainer(TrainerActing, TrainerOutputs):
-    """Trains agents A and B of one ablation mode with one seed.
+@dataclass
+class TransitionBatch:
+    """B joint transitions as tensors, agent axis first (A, then B): views of one gathered
+    block of replay rows, refilled in place at every update."""
 
-    Here: the state of a run, learning from replay, the schedules and the training loop.
-    Acting (``act``, ``policy``, ``make_vector_env``, ...) is in :mod:`trainer_acting`;
-    evaluation and outputs (``evaluate``, ``evaluate_and_log``, ``save_models``, the log)
-    in :mod:`trainer_outputs`.
+    obs: torch.Tensor  # (2, B, D) observations
+    next_obs: torch.Tensor  # (2, B, D) the observations the TD target bootstraps from
+    last_obs: torch.Tensor  # (2, B, D) observations one step before next_obs (= obs if n = 1)
+    prev_obs: torch.Tensor  # (2, B, D) each agent's observation one step earlier (DIAL)
+    has_prev: torch.Tensor  # (B,) 1.0 where prev_obs is stored, else 0.0
+    actions: torch.Tensor  # (2, B) int64
+    reward: torch.Tensor  # (B,) the team reward (k-step discounted)
+    done: torch.Tensor  # (B,) 1.0 where both agents reached the target (terminal)
+    discount: torch.Tensor  # (B,) γ^k of the k-step return, 0 where terminal
+    weights: torch.Tensor  # (B,) importance weights (ones without prioritised replay)
+
+    @classmethod
+    def of_rows(cls, rows: torch.Tensor, layout: dict[str, slice], obs_dim: int) -> TransitionBatch:
+        """Views of ``rows`` (B, row width) laid out as the replay buffer's ``layout``.
+        Fields the rows lack (transitions pushed by hand with the ten fields) get zeros;
+        ``last_obs`` is then ``obs``. ``actions`` is a copy: call :meth:`refresh`."""
+        b = rows.shape[0]
+
+        def pair(name_a: str) -> torch.Tensor:  # columns of X_A then X_B -> (2, B, D)
+            if name_a not in layout:
+                return torch.zeros(2, b, obs_dim)
+            first = layout[name_a].start
+            return rows[:, first : first + 2 * obs_dim].view(b, 2, obs_dim).transpose(0, 1)
+
+        def column(name: str) -> torch.Tensor:
+            return rows[:, layout[name].start] if name in layout else torch.zeros(b)
+
+        obs = pair("state_A")
+        return cls(
+            obs=obs, next_obs=pair("next_state_A"),
+            last_obs=pair("last_state_A") if "last_state_A" in layout else obs,
+            prev_obs=pair("prev_state_A"), has_prev=column("has_prev"),
+            actions=torch.zeros(2, b, dtype=torch.int64), reward=column("reward"),
+            done=column("done"), discount=column("discount"), weights=torch.ones(b),
+        )  # fmt: skip
+
+
+@dataclass
+class Checkpoint:
+    """The weights of one periodic evaluation and their results on the validation episodes
+    (:func:`rollout.summarize` dicts, greedy and at ε = 0.05)."""
+
+    env_steps: int
+    greedy: dict[str, Any]
+    eps: dict[str, Any]
+    state: dict[str, torch.Tensor]
+
+
+class MultiAgentTrainer:
+    """Trains agents A and B of one ablation mode with one seed.
 
     Args:
         env: the environment whose map, window and time limit training uses.
@@ -109,21 +165,16 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
             self.online.load_agents([self.online.agent(0)] * 2)
         self.target.load_state_dict(self.online.state_dict())
         self.target.requires_grad_(False)
-        self.optimizer = FlatAdam(self.online.flat, lr=cfg.lr)  # = torch.optim.Adam, faster
+        self.target_parameters = list(self.target.parameters())
+        self.online_parameters = list(self.online.parameters())  # both agents' weights
+        self.optimizer = torch.optim.Adam(self.online_parameters, lr=cfg.lr, fused=True)
         buffer_class = PrioritizedReplayBuffer if cfg.prioritized else ReplayBuffer
         self.replay_buffer = buffer_class(cfg.buffer_size, seed=self.seed)
         self.dial = cfg.comm_learning == "dial" and self.mode != "independent"
-        self.fast_gradient = (
-            None
-            if cfg.dueling
-            else FastTDGradient(
-                self.online, self.target, self.mask, self.dial, cfg.comm_noise,
-                self.noise_rng, weighted=cfg.prioritized,
-            )
-        )  # fmt: skip
-        self._batches: dict[tuple, tuple[TransitionBatch, np.ndarray, torch.Tensor, dict]] = {}
+        self._batch: tuple[int, int, torch.Tensor, TransitionBatch] | None = None
         self.epsilon = cfg.epsilon_start
         self.env_steps = self.episodes = self.updates = 0
+        self._update_credit = 0.0  # gradient updates due and not yet made
         self.last_td_errors: torch.Tensor | None = None  # (2, B) of the last update
         self.last_indices: np.ndarray | None = None  # replay slots of the last update
         self.recent_returns: deque[float] = deque(maxlen=100)
@@ -135,67 +186,127 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
         self._episode_rollout: Rollout | None = None  # for train_episode()
         self._evaluation_envs: dict[int, VectorMultiAgentEnv] = {}  # by number of copies
 
-    # ------------------------------------------------------------------ learning
+    # ------------------------------------------------------------------ 1-2. act and step
+    def make_vector_env(
+        self, n_envs: int, seed: int | None, validation: bool = False
+    ) -> VectorMultiAgentEnv:
+        """``n_envs`` copies of the training map with the reward the trainer learns from;
+        with ``map_pool`` > 0, copies that draw from the training maps (tracking the cells
+        seen, for the coverage bonus) or, for ``validation``, from the validation maps."""
+        cfg, size = self.cfg, self.env.grid_size
+        maps: dict[str, Any] = {}
+        if cfg.map_pool > 0:
+            pool = validation_maps(cfg.validation_maps, size) if validation else None
+            maps = dict(map_pool=training_maps(cfg.map_pool, size) if pool is None else pool)
+            maps["track_coverage"] = not validation and cfg.coverage_bonus > 0
+        return VectorMultiAgentEnv(
+            n_envs, grid=None if maps else self.env.grid, obs_window=self.env.obs_window,
+            max_steps=self.env.max_steps, seed=seed, reward_mode=cfg.reward_mode, **maps,
+        )  # fmt: skip
+
+    def start_rollout(self, n_envs: int, seed: int | None) -> Rollout:
+        return Rollout.start(self.make_vector_env(n_envs, seed), self.cfg.n_step, self.cfg.gamma)
+
+    @property
+    def network_A(self) -> torch.nn.Module:
+        """Agent A's network as a standalone AgentDQN / DuelingDQN (a snapshot)."""
+        return self.online.agent(0)
+
+    @property
+    def network_B(self) -> torch.nn.Module:
+        return self.online.agent(1)
+
+    def act(
+        self, obs: np.ndarray, epsilon: float, rng: np.random.Generator, noisy_messages: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """obs (N, 2, D) -> ε-greedy actions (N, 2) int64 and messages (N, 2) float32."""
+        with torch.inference_mode():
+            q_values, logits = self.online(torch.from_numpy(obs).transpose(0, 1) * self.mask)
+            logits = logits[..., 0]  # (2, N)
+            if noisy_messages and self.cfg.comm_noise > 0:  # DIAL's noise on the logit
+                noise = torch.randn(logits.shape, generator=self.noise_rng)
+                logits = logits + self.cfg.comm_noise * noise
+            messages = torch.sigmoid(logits).T.numpy()
+        actions = q_values.numpy().argmax(axis=-1).T  # the first best, as torch.max picks
+        if epsilon > 0:  # a greedy policy draws nothing
+            explore = rng.random(actions.shape) < epsilon
+            actions = np.where(explore, rng.integers(0, NUM_ACTIONS, actions.shape), actions)
+        return actions, messages
+
+    def select_action(
+        self, state: np.ndarray, network: torch.nn.Module, epsilon: float
+    ) -> tuple[int, float]:
+        """ε-greedy action and message of one agent: ``state`` (obs_dim,) raw observation."""
+        masked = torch.as_tensor(state, dtype=torch.float32) * self.mask
+        with torch.no_grad():
+            q_values, comm = network(masked.unsqueeze(0))
+        action = int(q_values.argmax(dim=1).item())
+        if self.rng.random() < epsilon:
+            action = int(self.rng.integers(NUM_ACTIONS))
+        return action, float(comm.item())
+
+    def policy(self, epsilon: float = 0.0, seed: int = EVAL_SEED) -> PolicyFn:
+        """The current greedy/ε-greedy policy as a function for :func:`rollout.run_episodes`."""
+        rng = np.random.default_rng(seed)
+        return lambda obs, positions: self.act(obs, epsilon, rng, noisy_messages=False)
+
+    def learning_rewards(self, rewards: np.ndarray, info: dict[str, np.ndarray]) -> np.ndarray:
+        """The team rewards (N,) plus the optional shaping, which only learning sees:
+        ``coverage_bonus`` per newly seen cell, ``on_target_bonus`` per agent on the target."""
+        cfg = self.cfg
+        if cfg.on_target_bonus > 0:
+            rewards = rewards + cfg.on_target_bonus * info["on_target"].sum(axis=1)
+        if cfg.coverage_bonus > 0 and "newly_seen" in info:
+            rewards = rewards + cfg.coverage_bonus * info["newly_seen"]
+        return rewards
+
+    # ------------------------------------------------------------------ 3. store
     def store(
         self, rollout: Rollout, actions: np.ndarray, messages: np.ndarray, rewards: np.ndarray,
         next_obs: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
     ) -> None:  # fmt: skip
-        """Push the joint transitions that this step of the N episodes completes (N of them
-        with n_step 1; see :class:`n_step.NStepWindow`); with each, the observations
-        one step before its start (DIAL). ``next_obs`` is the true next observation also
-        where an episode was cut off (``truncated``). Into a buffer that was first filled by
-        hand (the ten fields only) it pushes this step's one-step transitions instead."""
-        buffer = self.replay_buffer
+        """Push the joint transitions that this step of the N episodes completes (see
+        :class:`n_step.NStepWindow`); with each, both agents' observations one step before
+        its start (DIAL). ``next_obs`` is the true next observation also where an episode
+        was cut off (``truncated``). Into a buffer first filled by hand (the ten fields
+        only) it pushes this step's one-step transitions instead."""
+        buffer, obs = self.replay_buffer, rollout.obs
+        one_step = {
+            "state_A": obs[:, 0], "state_B": obs[:, 1],
+            "action_A": actions[:, 0], "action_B": actions[:, 1],
+            "comm_A": messages[:, 0], "comm_B": messages[:, 1],
+        }  # fmt: skip
         if len(buffer) and "discount" not in buffer.field_names:
-            # A buffer first filled by hand holds the ten fields of one-step transitions.
             buffer.push_batch(
-                state_A=rollout.obs[:, 0], state_B=rollout.obs[:, 1],
-                action_A=actions[:, 0], action_B=actions[:, 1],
-                comm_A=messages[:, 0], comm_B=messages[:, 1], reward=rewards,
-                next_state_A=next_obs[:, 0], next_state_B=next_obs[:, 1], done=terminated,
+                **one_step, reward=rewards, next_state_A=next_obs[:, 0],
+                next_state_B=next_obs[:, 1], done=terminated,
             )  # fmt: skip
             return
-        if not buffer.layout:  # an empty buffer: the columns of what the trainer stores
-            buffer.allocate(self.transition_shapes())
-        n = rollout.env.n_envs
-        start = {  # each pair of fields side by side: A's columns, then B's
-            "state_A": rollout.obs.reshape(n, -1), "prev_state_A": rollout.prev_obs.reshape(n, -1),
-            "action_A": actions, "comm_A": messages, "has_prev": rollout.has_prev,
+        start = one_step | {
+            "prev_state_A": rollout.prev_obs[:, 0], "prev_state_B": rollout.prev_obs[:, 1],
+            "has_prev": rollout.has_prev,
         }  # fmt: skip
         finished = terminated | truncated
-        rows = rollout.window.add(
-            buffer.layout, start, rewards, next_obs, rollout.obs, terminated, finished
-        )
-        if len(rows):  # the environment checked the actions and clipped the messages
-            buffer.push_rows(rows)
+        complete = rollout.window.add(start, rewards, next_obs, obs, terminated, finished)
+        if len(complete["reward"]):  # the environment checked the actions and messages
+            buffer.push_batch(validate=False, **complete)
 
-    def transition_shapes(self) -> dict[str, tuple[int, ...]]:
-        """The replay fields the trainer stores, with their per-transition shapes: the ten
-        required, each agent's previous observation and ``has_prev`` (DIAL), ``discount``
-        and, with n-step returns, the observations one step before the next
-        (``last_state_*``)."""
-        observation = (self.obs_dim,)
-        shapes = {name: observation if name in STATE_FIELDS else () for name in TRANSITION_FIELDS}
-        states = ["prev_state"] + ["last_state"] * (self.cfg.n_step > 1)
-        shapes |= {f"{name}_{agent}": observation for name in states for agent in "AB"}
-        return shapes | {"discount": (), "has_prev": ()}
-
+    # ------------------------------------------------------------------ 4. update
     def sample(self, batch_size: int) -> TransitionBatch:
-        """A batch from the replay buffer: its packed rows, gathered into one tensor that
+        """A batch from the replay buffer: its rows gathered (one copy) into a tensor that
         is reused from update to update and that the batch's fields view."""
-        layout = self.replay_buffer.layout  # fixed once the buffer holds a transition
-        key = (batch_size, id(layout), len(layout))
-        if key not in self._batches:
-            width = max(columns.stop for columns in layout.values())
-            rows = torch.zeros(batch_size, width)
-            batch = TransitionBatch.of_rows(rows, layout, self.obs_dim)
-            actions = TransitionBatch.stored_actions(rows, layout)
-            self._batches = {key: (batch, rows.numpy(), actions, layout)}
-        batch, rows, actions, _ = self._batches[key]  # (the layout kept: its id stays its own)
-        weights, self.last_indices = self.replay_buffer.sample_rows(batch_size, rows)
-        batch.actions.copy_(actions)
+        layout = self.replay_buffer.layout
+        if self._batch is None or self._batch[:2] != (batch_size, len(layout)):
+            rows = torch.zeros(batch_size, max(columns.stop for columns in layout.values()))
+            self._batch = (batch_size, len(layout), rows, TransitionBatch.of_rows(
+                rows, layout, self.obs_dim
+            ))  # fmt: skip
+        _, _, rows, batch = self._batch
+        _, weights, self.last_indices = self.replay_buffer.sample_rows(batch_size, rows.numpy())
+        first = layout["action_A"].start
+        batch.actions.copy_(rows[:, first : first + 2].T)  # A's column then B's
         if "discount" not in layout:  # transitions pushed by hand: d = γ (1 − done)
-            torch.mul(batch.done, -self.cfg.gamma, out=batch.discount).add_(self.cfg.gamma)
+            batch.discount.copy_(self.cfg.gamma * (1.0 - batch.done))
         if self.cfg.prioritized:
             batch.weights.copy_(torch.from_numpy(weights))
         return batch
@@ -203,14 +314,15 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
     def td_loss(self, batch: TransitionBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The Huber TD loss, summed over both agents (the assignment's L = L_A + L_B).
 
+        y = R + d · Q_target(s', argmax_a Q_online(s', a))  (Double DQN), where R is the
+        discounted reward of k <= n steps and d = γ^k, 0 where both reached the target
+        (the only terminal: the time limit is a cut-off and is bootstrapped through).
         Returns (loss with gradient, TD errors δ (2, B), Q(s, a) (2, B)), the last two
-        detached. Terminal only when both reached the target; Double-DQN target. With
-        n-step returns R is the discounted reward of k <= n steps and d = γ^k (0 where
-        terminal); with k = 1 that is r and γ (1 − done)."""
+        detached."""
         obs, next_obs = batch.obs * self.mask, batch.next_obs * self.mask
         if self.dial:
             obs, next_obs = self.splice_messages(batch, obs, next_obs)
-        with torch.no_grad():  # y = R + d Q_target(s', argmax_a Q_online(s', a))
+        with torch.no_grad():
             best_next = self.online(next_obs)[0].max(dim=-1, keepdim=True).indices
             next_value = self.target(next_obs)[0].gather(-1, best_next)[..., 0]
             target = batch.reward + batch.discount * next_value
@@ -229,12 +341,9 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
         observation at t-1 (``prev_obs[1]``). Recomputing it with B's online network,
         with gradient and with noise on the logit, lets A's TD loss train B's message
         head (and vice versa). Where no previous observation is stored (an episode start,
-        or a transition pushed by hand) the stored message stays. The message in the next
-        observation s' comes from the partner's target network, without gradient, on the
-        partner's observation one step before s' (``last_obs``: ``obs`` itself for one-step
-        transitions), as it would have been sent; with n-step returns the message that
-        actually arrived was sent by an older network with exploration noise.
-        """
+        or a transition pushed by hand) the stored message stays. The message in s' comes
+        from the partner's target network, without gradient, on the partner's observation
+        one step before s' (``last_obs``), as it would have been sent."""
         m = self.obs_dim - 2
         _, logits = self.online(batch.prev_obs * self.mask)
         if self.cfg.comm_noise > 0:
@@ -243,8 +352,7 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
         has_prev = batch.has_prev.view(1, -1, 1) > 0
         received = torch.where(has_prev, torch.sigmoid(logits).flip(0), obs[..., m : m + 1])
         with torch.no_grad():
-            last_obs = batch.last_obs * self.mask
-            next_received = torch.sigmoid(self.target(last_obs)[1]).flip(0)
+            next_received = torch.sigmoid(self.target(batch.last_obs * self.mask)[1]).flip(0)
 
         def with_message(x: torch.Tensor, message: torch.Tensor) -> torch.Tensor:
             return torch.cat([x[..., :m], message, x[..., m + 1 :]], dim=-1)
@@ -256,34 +364,21 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
         the buffer holds fewer than ``batch_size`` transitions)."""
         if len(self.replay_buffer) < batch_size:
             return 0.0
-        batch = self.sample(batch_size)
-        if self.fast_gradient is not None:  # the gradient of td_loss, written by hand
-            loss, self.last_td_errors, mean_q = self.fast_gradient(batch)
-        else:
-            self.optimizer.zero_grad()
-            loss_tensor, self.last_td_errors, q_taken = self.td_loss(batch)
-            loss_tensor.backward()
-            loss, mean_q = float(loss_tensor.detach()), float(q_taken.mean())
+        loss, self.last_td_errors, q_taken = self.td_loss(self.sample(batch_size))
+        self.optimizer.zero_grad()
+        loss.backward()
         if self.cfg.share_weights:  # one shared parameter: the sum of both agents' gradients
-            for gradient in self.online.gradients():  # each (2, ...), agent axis first
-                gradient.copy_(gradient.sum(dim=0, keepdim=True).expand_as(gradient))
-        self.optimizer.step(grad_divisor=self.online.clip_divisor(self.cfg.max_grad_norm))
+            for p in self.online_parameters:  # each (2, ...), agent axis first
+                p.grad.copy_(p.grad.sum(dim=0, keepdim=True).expand_as(p.grad))
+        torch.nn.utils.clip_grad_norm_(self.online_parameters, self.cfg.max_grad_norm, foreach=True)
+        self.optimizer.step()
         self.updates += 1
-        self._losses.append(loss)
-        self._mean_qs.append(mean_q)
-        return loss
+        loss_value = float(loss.detach())
+        self._losses.append(loss_value)
+        self._mean_qs.append(float(q_taken.mean()))
+        return loss_value
 
-    def learning_rewards(self, rewards: np.ndarray, info: dict[str, np.ndarray]) -> np.ndarray:
-        """The team rewards (N,) plus the optional shaping, which only learning sees:
-        ``coverage_bonus`` per newly seen cell, ``on_target_bonus`` per agent on the target."""
-        cfg = self.cfg
-        if cfg.on_target_bonus > 0:
-            rewards = rewards + cfg.on_target_bonus * info["on_target"].sum(axis=1)
-        if cfg.coverage_bonus > 0 and "newly_seen" in info:
-            rewards = rewards + cfg.coverage_bonus * info["newly_seen"]
-        return rewards
-
-    # ------------------------------------------------------------------ schedules
+    # ------------------------------------------------------------------ 5. target sync
     def update_and_sync_target(self) -> None:
         """One gradient update; with PER, the priorities it measured (one per joint
         transition: the larger |δ| of the two agents); then the target networks: with
@@ -296,12 +391,16 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
         if cfg.prioritized:
             priorities = self.last_td_errors.abs().max(dim=0).values.numpy() + 1e-6
             self.replay_buffer.update_priorities(self.last_indices, priorities)
-        with torch.no_grad():  # both networks' weights are one flat parameter each
-            if cfg.target_update == 0:
-                self.target.flat.lerp_(self.online.flat, cfg.target_tau)
-            elif self.updates % cfg.target_update == 0:
-                self.target.flat.copy_(self.online.flat)  # = load_state_dict(...)
+        if cfg.target_update == 0:
+            with torch.no_grad():
+                for target, online in zip(
+                    self.target_parameters, self.online_parameters, strict=True
+                ):
+                    target.lerp_(online, cfg.target_tau)
+        elif self.updates % cfg.target_update == 0:
+            self.target.load_state_dict(self.online.state_dict())
 
+    # ------------------------------------------------------------------ 6. schedules
     def progress(self) -> float:
         """Fraction of the training budget spent, in [0, 1]."""
         cfg = self.cfg
@@ -330,6 +429,34 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
         return self.env_steps >= cfg.total_steps
 
     # ------------------------------------------------------------------ the algorithm
+    def step(self, rollout: Rollout, updates: float) -> tuple[np.ndarray, np.ndarray]:
+        """One step of the N environment copies of ``rollout``, learning as DQN does; then
+        ``updates`` gradient updates (a fraction carries over to the next step). Returns the
+        returns and successes of the episodes that ended."""
+        # 1. Act ε-greedily (messages with DIAL noise), 2. step all environment copies.
+        actions, messages = self.act(rollout.obs, self.epsilon, self.rng, noisy_messages=True)
+        next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
+        # 3. Store. Only "both on target" is terminal; the time limit is a cut-off.
+        learned = self.learning_rewards(rewards, info)
+        self.store(rollout, actions, messages, learned, info["final_obs"], terminated, truncated)
+        finished = terminated | truncated
+        returns = rollout.advance(next_obs, rewards, finished)
+        self.env_steps += rollout.env.n_envs
+        self.episodes += int(finished.sum())
+        self.recent_returns.extend(returns.tolist())
+        self.recent_successes.extend(terminated[finished].tolist())
+        # 4. Update and 5. sync the target networks, if due.
+        if self.env_steps >= self.cfg.learning_starts:
+            self._update_credit += updates
+        while self._update_credit >= 1.0:
+            self._update_credit -= 1.0
+            self.update_and_sync_target()
+        # 6. Schedules.
+        self.epsilon = self.next_epsilon(int(finished.sum()))
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.learning_rate()
+        return returns, terminated[finished]
+
     def train(self, progress: Callable[[dict[str, Any]], None] | None = None) -> list[dict]:
         """Collect with the vectorised environments and learn until the budget is spent;
         evaluate every ``eval_interval`` env steps (validation episodes), keep the best
@@ -337,37 +464,11 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
         cfg, rollout = self.cfg, self.rollout
         self.start_log()
         next_evaluation = 0
-        update_credit = 0.0
         while not self.budget_spent():
-            if self.env_steps >= next_evaluation:
+            if self.env_steps >= next_evaluation:  # 7. Evaluate and log.
                 self.evaluate_and_log(progress)
                 next_evaluation += cfg.eval_interval
-            # 1. Act ε-greedily (messages with DIAL noise), 2. step all environment copies.
-            actions, messages = self.act(rollout.obs, self.epsilon, self.rng, noisy_messages=True)
-            next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
-            # 3. Store. Only "both on target" is terminal; the time limit is a cut-off.
-            learned = self.learning_rewards(rewards, info)
-            self.store(
-                rollout, actions, messages, learned, info["final_obs"], terminated, truncated
-            )
-            finished = terminated | truncated
-            self.recent_returns.extend(rollout.advance(next_obs, rewards, finished).tolist())
-            self.recent_successes.extend(terminated[finished].tolist())
-            n_finished = int(finished.sum())
-            self.env_steps += rollout.env.n_envs
-            self.episodes += n_finished
-            # 4. Update if due: updates_per_step per step of the num_envs copies.
-            if self.env_steps >= cfg.learning_starts:
-                update_credit += cfg.updates_per_step * rollout.env.n_envs / cfg.num_envs
-            while update_credit >= 1.0:
-                update_credit -= 1.0
-                # 5. Target networks: a soft update (or a hard copy every target_update).
-                self.update_and_sync_target()
-            # 6. Schedules.
-            self.epsilon = self.next_epsilon(n_finished)
-            for group in self.optimizer.param_groups:
-                group["lr"] = self.learning_rate()
-        # 7. Log the end, keep the best weights, save.
+            self.step(rollout, cfg.updates_per_step)
         self.evaluate_and_log(progress)
         if cfg.keep_best:
             self.online.load_state_dict(self.best_checkpoint().state)
@@ -375,27 +476,105 @@ class MultiAgentTrainer(TrainerActing, TrainerOutputs):
         return self.log
 
     def train_episode(self) -> tuple[float, bool]:
-        """Play one episode in a single environment, learning as :meth:`train` does;
-        returns (episode_reward, success)."""
+        """Play one episode in a single environment, learning as :meth:`train` does but
+        with one gradient update per env step (the skeleton's loop); returns
+        (episode_reward, success)."""
         if self._episode_rollout is None:
             self._episode_rollout = self.start_rollout(1, self.seed + 1)
-        rollout, cfg = self._episode_rollout, self.cfg
         while True:
-            actions, messages = self.act(rollout.obs, self.epsilon, self.rng, noisy_messages=True)
-            next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
-            learned = self.learning_rewards(rewards, info)
-            self.store(
-                rollout, actions, messages, learned, info["final_obs"], terminated, truncated
+            returns, successes = self.step(self._episode_rollout, updates=1.0)
+            if len(returns):
+                return float(returns[0]), bool(successes[0])
+
+    # ------------------------------------------------------------------ 7. evaluate and log
+    def evaluate(
+        self, num_episodes: int = 10, epsilon: float = 0.0, seed: int = EVAL_SEED
+    ) -> tuple[float, float]:
+        """(mean reward, success rate) over fixed episodes (the test episodes by default),
+        under the reward the trainer learns from (unshaped); on the validation maps when
+        training on a map pool."""
+        summary = self.evaluation_summary(num_episodes, epsilon, seed)
+        return summary["mean_return"], summary["success_rate"]
+
+    def evaluation_summary(
+        self, num_episodes: int, epsilon: float, seed: int
+    ) -> dict[str, float | int | None]:
+        """:func:`rollout.evaluate_policy` of the current policy on fixed episodes drawn
+        from ``seed``, in environments made once per run (each evaluation reseeds them)."""
+        n_envs = min(num_episodes, 500)
+        if n_envs not in self._evaluation_envs:
+            self._evaluation_envs[n_envs] = self.make_vector_env(n_envs, None, validation=True)
+        env = self._evaluation_envs[n_envs]
+        return evaluate_policy(env, self.policy(epsilon), num_episodes, seed=seed)
+
+    def evaluate_and_log(self, progress: Callable[[dict[str, Any]], None] | None) -> None:
+        """Evaluate on the validation episodes, keep the weights with their results as a
+        checkpoint, append a row to the log and its CSV file."""
+        episodes = self.cfg.eval_episodes
+        greedy = self.evaluation_summary(episodes, 0.0, VALIDATION_SEED)
+        eps = self.evaluation_summary(episodes, EVAL_EPSILON, VALIDATION_SEED)
+        state = {k: v.clone() for k, v in self.online.state_dict().items()}
+        self.checkpoints.append(Checkpoint(self.env_steps, greedy, eps, state))
+
+        def mean(values: Any) -> float:
+            return float(np.mean(values)) if len(values) else math.nan
+
+        def steps(summary: dict[str, Any]) -> float:
+            value = summary["mean_steps_to_success"]
+            return math.nan if value is None else value
+
+        row = dict(
+            env_steps=self.env_steps, episodes=self.episodes, updates=self.updates,
+            epsilon=round(self.epsilon, 6), loss=mean(self._losses), mean_q=mean(self._mean_qs),
+            train_return=mean(self.recent_returns), train_success=mean(self.recent_successes),
+            eval_success_greedy=greedy["success_rate"], eval_success_eps=eps["success_rate"],
+            eval_return_greedy=greedy["mean_return"], eval_return_eps=eps["mean_return"],
+            eval_steps_greedy=steps(greedy), eval_steps_eps=steps(eps),
+        )  # fmt: skip
+        self._losses, self._mean_qs = [], []
+        self.log.append(row)
+        with open(self.log_path, "a", newline="", encoding="utf-8") as handle:
+            csv.DictWriter(handle, LOG_FIELDS, lineterminator="\n").writerow(row)
+        if progress:
+            progress(row)
+
+    def best_checkpoint(self) -> Checkpoint | None:
+        """The checkpoint that ``cfg.select_by`` picks (:func:`rollout.select_best`), or None
+        before the first evaluation."""
+        if not self.checkpoints:
+            return None
+        pairs = [(c.greedy, c.eps) for c in self.checkpoints]
+        return self.checkpoints[select_best(pairs, self.cfg.select_by)]
+
+    @property
+    def best_env_steps(self) -> int:
+        """Environment steps at the best checkpoint (0 before the first evaluation)."""
+        best = self.best_checkpoint()
+        return 0 if best is None else best.env_steps
+
+    @property
+    def best_selection(self) -> dict[str, float]:
+        """Validation success rates of the best checkpoint, ``greedy`` and ``eps``."""
+        best = self.best_checkpoint()
+        if best is None:
+            return {}
+        return {c: getattr(best, c)["success_rate"] for c in ("greedy", "eps")}
+
+    @property
+    def log_path(self) -> Path:
+        return self.logs_dir / f"{self.name}.csv"
+
+    def start_log(self) -> None:
+        """Create the log file with its header (replacing an older one)."""
+        self.logs_dir.mkdir(parents=True, exist_ok=True)
+        with open(self.log_path, "w", newline="", encoding="utf-8") as handle:
+            csv.DictWriter(handle, LOG_FIELDS, lineterminator="\n").writeheader()
+
+    def save_models(self) -> list[Path]:
+        """Export both agents (TorchScript, mask inside) as ``<mode>_seed<seed>_agent_X.pt``."""
+        return [
+            export_policy(
+                self.online.agent(i), self.mode, self.models_dir / f"{self.name}_agent_{a}.pt"
             )
-            finished = terminated | truncated
-            returns = rollout.advance(next_obs, rewards, finished)
-            self.env_steps += 1
-            if self.env_steps >= cfg.learning_starts:
-                self.update_and_sync_target()
-            if finished[0]:
-                self.episodes += 1
-                self.epsilon = self.next_epsilon(1)
-                return float(returns[0]), bool(terminated[0])
-
-
-__all__ = ["EVAL_EPSILON", "MultiAgentTrainer", "apply_observation_mask", "config_from"]
+            for i, a in enumerate("AB")
+        ]

@@ -11,7 +11,11 @@ draw a new map from a pool at every episode start (``map_pool``).
 from __future__ import annotations
 
 import numpy as np
-from env_inputs import (
+from grid_maps import (
+    ACTION_DELTAS,
+    FREE,
+    OFF_GRID,
+    TARGET,
     check_action_values,
     check_cell_array,
     check_choice,
@@ -22,13 +26,36 @@ from env_inputs import (
     choose_maps,
     positive_int,
 )
-from grid_maps import ACTION_DELTAS, FREE, OFF_GRID, TARGET
 
 BOTH_ON_TARGET_REWARD = 10.0
 ARRIVAL_REWARD = 2.0
 STEP_REWARD = -0.1
 REWARD_MODES = ("per_step", "arrival")  # the first is the default: the assignment's table
 MAX_TABULATED_CELLS = 4096  # padded cells; the (P, P) float32 table is then ≤ 64 MiB
+
+
+def team_rewards(on_target: np.ndarray, first_arrival: np.ndarray, reward_mode: str) -> np.ndarray:
+    """The reward table: one team reward (N,) per step, from which agents stand on the
+    target now (``on_target`` (N, 2) bool) and which of them reach it for the first time
+    in the episode (``first_arrival`` (N, 2) bool).
+
+    ================================  ====================  =====================
+    after the joint move              ``per_step`` (default) ``arrival`` (trained)
+    ================================  ====================  =====================
+    both agents on the target (ends)  +10                   +10
+    exactly one agent on the target   +2 (every such step)  -0.1 (+2 on arrival)
+    an agent first reaches the target +2 / -0.1 as above    +2
+    otherwise                         -0.1                  -0.1
+    ================================  ====================  =====================
+    """
+    both = on_target[:, 0] & on_target[:, 1]
+    if reward_mode == "per_step":
+        pays_bonus = on_target[:, 0] != on_target[:, 1]  # exactly one on the target
+    else:
+        pays_bonus = first_arrival.any(axis=1)
+    rewards = np.where(pays_bonus, ARRIVAL_REWARD, STEP_REWARD)
+    rewards[both] = BOTH_ON_TARGET_REWARD
+    return rewards
 
 
 class VectorMultiAgentEnv:
@@ -356,15 +383,9 @@ class VectorMultiAgentEnv:
         self._messages = messages
         self._steps += 1
         on_target = flat == self._copy_target[:, None]
-        both_on_target = on_target[:, 0] & on_target[:, 1]
-        if self.reward_mode == "per_step":
-            pays_bonus = on_target[:, 0] != on_target[:, 1]  # exactly one on the target
-        else:
-            pays_bonus = (on_target & ~self._visited).any(axis=1)  # a first arrival
-        rewards = np.where(pays_bonus, ARRIVAL_REWARD, STEP_REWARD)
-        rewards[both_on_target] = BOTH_ON_TARGET_REWARD
+        rewards = team_rewards(on_target, on_target & ~self._visited, self.reward_mode)
         self._visited |= on_target
-        terminated = both_on_target
+        terminated = on_target[:, 0] & on_target[:, 1]
         truncated = (self._steps >= self.max_steps) & ~terminated
         obs = self._observe(flat, messages)
         info = {

@@ -13,6 +13,7 @@ from pathlib import Path
 from types import ModuleType
 
 import matplotlib
+import torch
 
 matplotlib.use("Agg")
 
@@ -35,3 +36,8 @@ def load_problem_module(problem: str, name: str) -> ModuleType:
     sys.modules[unique] = module
     spec.loader.exec_module(module)
     return module
+
+
+def weights_of(module: torch.nn.Module) -> torch.Tensor:
+    """All of ``module``'s parameters as one detached vector (a copy)."""
+    return torch.nn.utils.parameters_to_vector(module.parameters()).detach().clone()

@@ -20,7 +20,7 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
-from _atomic import write_json_atomic
+from batch_io import write_json_atomic
 from grid_maps import (
     ACTION_DELTAS,
     DEFAULT_MAP_SEED,
@@ -30,8 +30,8 @@ from grid_maps import (
     generate_map,
     target_distances,
 )
-from multi_agent_env import REWARD_MODES, VectorMultiAgentEnv
 from rollout import EVAL_SEED, PolicyFn, evaluate_policy
+from vector_env import REWARD_MODES, VectorMultiAgentEnv
 
 RESULTS_DIR = Path(__file__).resolve().parent.parent / "results" / "evaluation_results"
 MAP_SEEDS = (DEFAULT_MAP_SEED, 0, 1, 2, 3, 4)

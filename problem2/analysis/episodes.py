@@ -12,8 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from multi_agent_env import NUM_ACTIONS, VectorMultiAgentEnv
+from grid_maps import NUM_ACTIONS
 from rollout import EVAL_SEED, EpisodeResults, PolicyFn, summarize
+from vector_env import VectorMultiAgentEnv
 
 from analysis.failures import failure_shares
 from analysis.runs import check_policy_outputs

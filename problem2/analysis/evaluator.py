@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import torch
 from grid_maps import ACTION_NAMES, OBSTACLE, TARGET, generate_map
-from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
+from multi_agent_env import MultiAgentEnv
 from rollout import (
     EVAL_EPSILON,
     EVAL_SEED,
@@ -20,6 +20,7 @@ from rollout import (
     split_blocks,
     summarize,
 )
+from vector_env import VectorMultiAgentEnv
 
 from analysis.baselines import oracle_policy
 from analysis.episodes import (

@@ -25,8 +25,8 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from multi_agent_env import VectorMultiAgentEnv
 from rollout import EpisodeResults, PolicyFn
+from vector_env import VectorMultiAgentEnv
 
 INTERVENTIONS = {
     "real": "the input as delivered",

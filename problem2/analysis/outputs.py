@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from _atomic import temporary_path_for
+from batch_io import temporary_path_for
 
 from analysis.messages import mean_message_per_cell
 from analysis.plots import (

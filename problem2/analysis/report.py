@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from _atomic import temporary_path_for
+from batch_io import temporary_path_for
 
 from analysis.failures import DECOMPOSITION, FAILURE_KINDS
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from grid_maps import ACTION_DELTAS, NUM_ACTIONS, OBSTACLE, TARGET, target_distances
-from multi_agent_env import ARRIVAL_REWARD, BOTH_ON_TARGET_REWARD, STEP_REWARD
+from vector_env import ARRIVAL_REWARD, BOTH_ON_TARGET_REWARD, STEP_REWARD
 
 REWARDS = ("per_step", "arrival")
 GAMMA = 0.99

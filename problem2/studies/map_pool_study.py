@@ -40,16 +40,20 @@ from typing import Any
 
 import numpy as np
 import torch
-from _atomic import remove_stale_temporaries, temporary_path_for, write_json_atomic
 from analysis.held_out import baselines_on_held_out, held_out_success
 from analysis.stats import BOOTSTRAP_RESAMPLES, seed_statistics
-from batch_workers import ProgressLine, run_jobs
+from batch_io import (
+    ProgressLine,
+    remove_stale_temporaries,
+    run_jobs,
+    temporary_path_for,
+    write_json_atomic,
+)
 from grid_maps import HELD_OUT_MAP_SEEDS, MAX_POOL_SIZE, TRAINING_FIRST_SEED, VALIDATION_FIRST_SEED
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED
-from setting_checks import SettingError, check_value, int_in
-from train_config import MODES, TrainConfig, available_cores
+from train_config import MODES, SettingError, TrainConfig, available_cores, check_value, int_in
 from trainer import MultiAgentTrainer
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "map_pool"

@@ -25,14 +25,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _atomic import write_json_atomic
 from analysis.evaluator import MultiAgentEvaluator
 from analysis.failures import arrivals
 from analysis.runs import Experiment, load_model_pair, read_experiment
 from analysis.stats import seed_statistics
+from batch_io import write_json_atomic
 from grid_maps import DEFAULT_MAP_SEED, TARGET, generate_map, target_distances
-from multi_agent_env import VectorMultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED
+from vector_env import VectorMultiAgentEnv
 
 from studies import joint_dp
 from studies.reward_study_outputs import CONDITIONS, format_table, plot_study

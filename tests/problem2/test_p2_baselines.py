@@ -21,8 +21,9 @@ from analysis.baselines import (
     random_policy,
     shortest_path_actions,
 )
-from multi_agent_env import ACTION_DELTAS, VectorMultiAgentEnv, generate_map, target_distances
+from grid_maps import ACTION_DELTAS, generate_map, target_distances
 from rollout import evaluate_policy, run_episodes
+from vector_env import VectorMultiAgentEnv
 
 
 @pytest.mark.parametrize("map_seed", MAP_SEEDS)

@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from batch_workers import ProgressLine
+from batch_io import ProgressLine
 from train_config import TrainConfig, parse_config
 
 from tests.conftest import PROBLEM2, load_problem_module

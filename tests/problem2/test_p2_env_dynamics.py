@@ -6,7 +6,8 @@ import math
 
 import numpy as np
 import pytest
-from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
+from multi_agent_env import MultiAgentEnv
+from vector_env import VectorMultiAgentEnv
 
 # 5×5: an obstacle at (1, 1), the target at (3, 3).
 GRID = np.array(

@@ -6,7 +6,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
-from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
+from multi_agent_env import MultiAgentEnv
+from vector_env import VectorMultiAgentEnv
 
 N_ENVS, N_STEPS = 3, 40
 ALLOWED_REWARDS = np.array([-0.1, 2.0, 10.0])  # one team value per step, never a sum

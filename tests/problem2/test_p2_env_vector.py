@@ -8,14 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from multi_agent_env import (
-    MultiAgentEnv,
-    VectorMultiAgentEnv,
-    generate_map,
-    load_map,
-    save_map,
-    target_distances,
-)
+from grid_maps import generate_map, load_map, save_map, target_distances
+from multi_agent_env import MultiAgentEnv
+from vector_env import VectorMultiAgentEnv
 
 GRID = np.array([[0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 2, 0], [0, 0, 0, 0]])
 

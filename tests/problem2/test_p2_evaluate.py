@@ -30,8 +30,9 @@ from analysis.interventions import (
 from analysis.stats import bootstrap_ci, interquartile_mean, mode_differences, seed_statistics
 from evaluate import MultiAgentEvaluator
 from models import MESSAGE_INDEX
-from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
+from multi_agent_env import MultiAgentEnv
 from rollout import EpisodeResults, run_episodes, select_best, summarize
+from vector_env import VectorMultiAgentEnv
 
 from tests.conftest import PROBLEM2
 

@@ -30,9 +30,11 @@ from evaluate import (
     main,
     parse_args,
 )
+from grid_maps import load_map
 from models import AgentDQN, DuelingDQN, export_policy
-from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv, load_map
+from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, run_episodes
+from vector_env import VectorMultiAgentEnv
 
 from tests.conftest import PROBLEM2
 

@@ -17,10 +17,11 @@ from grid_maps import (
     training_maps,
     validation_maps,
 )
-from multi_agent_env import MultiAgentEnv, VectorMultiAgentEnv
+from multi_agent_env import MultiAgentEnv
 from studies import map_pool_study
 from train_config import TrainConfig
 from trainer import MultiAgentTrainer
+from vector_env import VectorMultiAgentEnv
 
 MAPS = np.stack([generate_map((10, 10), seed) for seed in (0, 1, 2, 3)])
 
@@ -168,13 +169,14 @@ def test_shared_gradient_is_the_sum_of_both_agents(tmp_path: Path) -> None:
     trainer.online.zero_grad(set_to_none=True)
     loss, _, _ = trainer.td_loss(batch)
     loss.backward()
-    expected = [g.sum(dim=0) for g in trainer.online.gradients()]
+    expected = [p.grad.sum(dim=0) for p in trainer.online.parameters()]
     trainer.sample = lambda batch_size: batch  # the same batch for update_networks
     stepped = []
-    trainer.optimizer.step = lambda **_: stepped.append(trainer.online.flat.grad.clone())
+    trainer.optimizer.step = lambda **_: stepped.append(
+        [p.grad.clone() for p in trainer.online.parameters()]
+    )
     trainer.update_networks(32)
-    got = trainer.online._views_of(stepped[0])
-    for mine, want in zip(got, expected, strict=True):
+    for mine, want in zip(stepped[0], expected, strict=True):
         assert torch.equal(mine[0], mine[1])
         assert torch.allclose(mine[0], want, atol=1e-6)
 

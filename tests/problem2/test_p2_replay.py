@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from n_step import NStepWindow
 from replay_buffer import (
     TRANSITION_FIELDS,
     PrioritizedReplayBuffer,
     ReplayBuffer,
     SumTree,
 )
+from rollout import NStepWindow
 
 
 def batch_of(first: int, count: int, obs_dim: int = 11) -> dict[str, np.ndarray]:
@@ -38,44 +38,30 @@ def test_ring_buffer_keeps_the_latest_transitions() -> None:
 
 
 @pytest.mark.parametrize("buffer_class", [ReplayBuffer, PrioritizedReplayBuffer])
-def test_packed_rows_store_what_the_same_fields_store(buffer_class: type) -> None:
-    """push_rows of rows packed in the layout that allocate() fixes = push_batch of the
-    fields, also across the end of the ring; new rows get the largest priority (PER)."""
+def test_sampled_rows_unpack_to_the_stored_fields(buffer_class: type) -> None:
+    """sample_rows gathers whole rows that unpack to what get() reads at the drawn slots,
+    also after pushes across the end of the ring; new rows get the largest priority (PER);
+    A's and B's observations sit side by side in a row (the learner views them as one
+    block)."""
     batch = batch_of(0, 7)
-    by_fields, by_rows = buffer_class(5), buffer_class(5)
-    by_fields.push_batch(**{name: value[:4] for name, value in batch.items()})
-    by_fields.push_batch(**{name: value[4:] for name, value in batch.items()})
-    layout = by_rows.allocate({name: value.shape[1:] for name, value in batch.items()})
-    assert layout == by_fields.layout
-    rows = np.zeros((7, max(c.stop for c in layout.values())), np.float32)
-    for name, value in batch.items():
-        rows[:, layout[name]] = value.reshape(7, -1)
-    assert np.array_equal(by_rows.push_rows(rows[:4]), np.arange(4))
-    assert np.array_equal(by_rows.push_rows(rows[4:]), [4, 0, 1])  # wraps around
-    stored, expected = by_rows.get(np.arange(5)), by_fields.get(np.arange(5))
-    for name in TRANSITION_FIELDS:
-        assert (
-            np.array_equal(stored[name], expected[name])
-            and stored[name].dtype == expected[name].dtype
-        ), name
+    buffer = buffer_class(5, seed=0)
+    assert np.array_equal(buffer.push_batch(**{k: v[:4] for k, v in batch.items()}), range(4))
+    assert np.array_equal(buffer.push_batch(**{k: v[4:] for k, v in batch.items()}), [4, 0, 1])
+    rows, weights, indices = buffer.sample_rows(5)
+    assert rows.shape == (5, max(c.stop for c in buffer.layout.values()))
+    stored, expected = buffer.unpack(rows), buffer.get(indices)
+    for name in buffer.field_names:
+        assert np.array_equal(stored[name], expected[name]), name
+        assert stored[name].dtype == expected[name].dtype, name
+    assert set(buffer.get(np.arange(5))["state_A"][:, 0].tolist()) == {2, 3, 4, 5, 6}
+    for first, second in (("state_A", "state_B"), ("next_state_A", "next_state_B")):
+        assert buffer.layout[first].stop == buffer.layout[second].start
+    out = np.zeros_like(rows)
+    assert buffer.sample_rows(5, out)[0] is out
     if buffer_class is PrioritizedReplayBuffer:
-        assert np.array_equal(
-            by_rows._tree.values(np.arange(5)), by_fields._tree.values(np.arange(5))
-        )
-
-
-def test_packed_rows_need_fixed_columns_of_their_width() -> None:
-    buffer = ReplayBuffer(5)
-    with pytest.raises(ValueError, match="allocate"):
-        buffer.push_rows(np.zeros((2, 30), np.float32))
-    shapes = {name: value.shape[1:] for name, value in batch_of(0, 1).items()}
-    with pytest.raises(ValueError, match="missing required fields"):
-        buffer.allocate({k: v for k, v in shapes.items() if k != "reward"})
-    layout = buffer.allocate(shapes)
-    with pytest.raises(ValueError, match="shape"):
-        buffer.push_rows(np.zeros((2, max(c.stop for c in layout.values()) + 1), np.float32))
-    with pytest.raises(ValueError, match="fixed already"):
-        buffer.allocate(shapes)
+        assert np.allclose(buffer._tree.values(np.arange(5)), 1.0)  # max priority 1 so far
+    else:
+        assert np.array_equal(weights, np.ones(5, np.float32))
 
 
 def test_sampled_fields_stay_aligned_and_typed() -> None:
@@ -119,7 +105,8 @@ def test_extras_are_stored_beside_the_required_fields() -> None:
     partner = batch["state_B"] * 10
     buffer.push_batch(**batch, prev_partner_obs_A=partner, prev_partner_obs_B=partner + 1)
     assert buffer.field_names == (*TRANSITION_FIELDS, "prev_partner_obs_A", "prev_partner_obs_B")
-    fields, weights, indices = buffer.sample_batch(8)
+    rows, weights, indices = buffer.sample_rows(8)
+    fields = buffer.unpack(rows)
     assert np.array_equal(fields["prev_partner_obs_A"], fields["state_B"] * 10)
     assert np.array_equal(fields["prev_partner_obs_B"], fields["state_B"] * 10 + 1)
     assert np.array_equal(weights, np.ones(8, dtype=np.float32)) and indices.shape == (8,)
@@ -327,18 +314,25 @@ def test_n_step_window_gives_each_step_its_discounted_k_step_return(n_step: int)
     terminated = finished & (rng.random((n_steps, n_envs)) < 0.5)
     finished[-1] = terminated[-1] = True  # every episode ends
     observations = rng.normal(size=(n_steps + 1, n_envs, 2, 1))
-    names = ["step", "env", "next_state_A", "next_state_B", "last_state_A", "last_state_B"]
-    names += ["reward", "done", "discount"]
-    layout = {name: slice(column, column + 1) for column, name in enumerate(names)}
     emitted = []
     for t in range(n_steps):
         start = {"step": np.full(n_envs, t), "env": np.arange(n_envs)}
-        rows = window.add(
-            layout, start, rewards[t], observations[t + 1], observations[t], terminated[t],
-            finished[t],
-        )  # fmt: skip
-        assert rows.dtype == np.float32 and rows.shape[1] == len(names)
-        emitted += [{name: row[layout[name].start] for name in names} for row in rows]
+        complete = window.add(
+            start, rewards[t], observations[t + 1], observations[t], terminated[t], finished[t]
+        )
+        names = set(complete)
+        assert names == {
+            "step",
+            "env",
+            "next_state_A",
+            "next_state_B",
+            "reward",
+            "done",
+            "discount",
+        } | ({"last_state_A", "last_state_B"} if n_step > 1 else set())
+        assert all(complete[k].dtype == np.float32 for k in ("reward", "done", "discount"))
+        count = len(complete["reward"])
+        emitted += [{name: complete[name][i].squeeze() for name in names} for i in range(count)]
     expected = []
     for env in range(n_envs):
         for t in range(n_steps):
@@ -363,4 +357,4 @@ def test_n_step_window_gives_each_step_its_discounted_k_step_return(n_step: int)
             before = observations[want["last"], want["env"], :, 0]
             assert [got["last_state_A"], got["last_state_B"]] == pytest.approx(before.tolist())
         else:  # one-step transitions leave last_state to the learner (it is the state)
-            assert got["last_state_A"] == 0.0
+            assert "last_state_A" not in got

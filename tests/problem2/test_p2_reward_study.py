@@ -16,9 +16,9 @@ from analysis.runs import sha256_of
 from analysis.stats import seed_statistics
 from grid_maps import generate_map, save_map
 from models import AgentDQN, export_policy
-from multi_agent_env import VectorMultiAgentEnv
 from rollout import run_episodes
 from studies import joint_dp, reward_study
+from vector_env import VectorMultiAgentEnv
 
 GAMMA = 0.99
 CORRIDOR_3 = np.array([[0, 2, 0]])  # A | target | B

@@ -15,7 +15,7 @@ from multi_agent_env import MultiAgentEnv
 from rollout import VALIDATION_SEED, select_best
 from train_config import TrainConfig
 
-from tests.conftest import load_problem_module
+from tests.conftest import load_problem_module, weights_of
 
 train = load_problem_module("problem2", "train")
 
@@ -85,13 +85,13 @@ def push_by_hand(trainer: train.MultiAgentTrainer, count: int, rng: np.random.Ge
 
 def assert_hard_copy_after(trainer: train.MultiAgentTrainer, period: int) -> None:
     """The target stays as it is for ``period`` - 1 updates, then equals the online."""
-    start = trainer.target.flat.detach().clone()
+    start = weights_of(trainer.target)
     for _ in range(period - 1):
         trainer.update_and_sync_target()
-        assert torch.equal(trainer.target.flat.detach(), start)
+        assert torch.equal(weights_of(trainer.target), start)
     trainer.update_and_sync_target()
     assert trainer.updates == period
-    assert torch.equal(trainer.target.flat.detach(), trainer.online.flat.detach())
+    assert torch.equal(weights_of(trainer.target), weights_of(trainer.online))
 
 
 def filled_trainer(**settings: object) -> train.MultiAgentTrainer:
@@ -111,11 +111,11 @@ def test_soft_target_update_moves_the_target_tau_of_the_way_after_each_update(
     trainer = filled_trainer(target_tau=0.25, output_dir=str(tmp_path))
     assert trainer.cfg.target_update == 0  # the default: soft updates
     for _ in range(3):
-        before = trainer.target.flat.detach().clone()
+        before = weights_of(trainer.target)
         trainer.update_and_sync_target()
-        online = trainer.online.flat.detach()
+        online = weights_of(trainer.online)
         assert not torch.equal(online, before)
-        assert torch.equal(trainer.target.flat.detach(), before.lerp(online, 0.25))
+        assert torch.equal(weights_of(trainer.target), before.lerp(online, 0.25))
 
 
 def test_target_update_makes_hard_copies_every_that_many_updates(tmp_path: Path) -> None:
@@ -139,10 +139,11 @@ def test_no_target_update_while_the_buffer_holds_less_than_a_batch(
     )  # fmt: skip
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
     with torch.no_grad():
-        trainer.target.flat.add_(1.0)  # a target that differs from the online networks
-    target = trainer.target.flat.detach().clone()
+        for parameter in trainer.target.parameters():  # a target unlike the online networks
+            parameter.add_(1.0)
+    target = weights_of(trainer.target)
     trainer.update_and_sync_target()
-    assert trainer.updates == 0 and torch.equal(trainer.target.flat.detach(), target)
+    assert trainer.updates == 0 and torch.equal(weights_of(trainer.target), target)
 
 
 @pytest.mark.parametrize("mode", ["independent", "comm", "full"])
@@ -152,10 +153,10 @@ def test_transitions_pushed_by_hand_train_in_every_mode(mode: str) -> None:
     push_by_hand(trainer, 31, rng)
     assert trainer.update_networks(32) == 0.0 and trainer.updates == 0
     push_by_hand(trainer, 1, rng)
-    before = trainer.online.flat.detach().clone()
+    before = weights_of(trainer.online)
     loss = trainer.update_networks(32)
     assert type(loss) is float and loss > 0 and trainer.updates == 1
-    assert not torch.equal(before, trainer.online.flat.detach())
+    assert not torch.equal(before, weights_of(trainer.online))
     trainer.train_episode()  # the trainer's own transitions join the hand-filled buffer
 
 
