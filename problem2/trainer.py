@@ -61,12 +61,10 @@ def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndar
 
 
 def config_from(args: Any) -> TrainConfig:
-    """The run's TrainConfig: a TrainConfig as given (its maker validated it: the CLI or
-    ``experiments.run_experiments``), or one built and validated from any namespace (e.g.
-    the course skeleton's, whose ``grid_size`` is a list and whose ``mode`` may be missing
-    or ``all``: one trainer trains ``full`` then; without ``output_dir`` it writes under
-    ``results/`` of the current folder). Unknown attributes are ignored; the map comes from
-    the environment."""
+    """A TrainConfig as given (validated by its maker: the CLI, ``run_experiments``), or
+    one built and validated from any namespace, e.g. the course skeleton's (``mode``
+    missing or ``all`` means ``full``; output under ``./results``; unknown attributes and
+    ``grid_size`` ignored: the map comes from the environment)."""
     if isinstance(args, TrainConfig):
         return args
     known = {f.name for f in fields(TrainConfig)}
@@ -96,9 +94,9 @@ class TransitionBatch:
 
     @classmethod
     def of_rows(cls, rows: torch.Tensor, layout: dict[str, slice], obs_dim: int) -> TransitionBatch:
-        """Views of ``rows`` (B, row width) laid out as the replay buffer's ``layout``.
-        Fields the rows lack (transitions pushed by hand with the ten fields) get zeros;
-        ``last_obs`` is then ``obs``. ``actions`` is a copy: call :meth:`refresh`."""
+        """Views of ``rows`` (B, row width) in the replay buffer's ``layout``. Fields the
+        rows lack (transitions pushed by hand) are zeros, ``last_obs`` then ``obs``.
+        ``actions`` is int64, so a copy that :meth:`MultiAgentTrainer.sample` refills."""
         b = rows.shape[0]
 
         def pair(name_a: str) -> torch.Tensor:  # columns of X_A then X_B -> (2, B, D)

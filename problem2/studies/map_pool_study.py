@@ -60,6 +60,7 @@ STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "ma
 RECIPE: dict[str, Any] = dict(
     map_pool=2000, validation_maps=200, share_weights=True, coverage_bonus=0.05,
     on_target_bonus=0.1, n_step=3, gamma=0.95, lr=2.5e-4, target_update=1000, batch_size=256,
+    updates_per_step=2,
     hidden_dim=64, total_steps=1_000_000, select_by="success", epsilon_fraction=0.3,
     lr_end_factor=0.1, eval_interval=50_000, eval_episodes=500, seeds=[0, 1, 2, 3, 4],
 )  # fmt: skip

@@ -1,0 +1,92 @@
+"""The house: imports flow one way (studies -> analysis -> core), and the default update is
+the autograd one that a reader finds in ``trainer.td_loss``."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+import torch
+
+from tests.conftest import PROBLEM2, load_problem_module
+
+train = load_problem_module("problem2", "train")
+SUBFOLDERS = ("analysis", "studies")
+COURSE_ENTRY_SCRIPTS = ("evaluate.py",)  # the course's evaluator runs the analysis
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Every module ``path`` imports (absolute imports, ``from x import y`` also as x.y)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found |= {node.module} | {f"{node.module}.{alias.name}" for alias in node.names}
+    return found
+
+
+def top_packages(path: Path) -> set[str]:
+    return {name.split(".")[0] for name in imported_modules(path)}
+
+
+def import_closure(start: str) -> dict[str, Path]:
+    """The problem2 modules that ``start`` imports, directly or not."""
+    seen: dict[str, Path] = {}
+    todo = [start]
+    while todo:
+        name = todo.pop()
+        parts = name.split(".")
+        candidates = [PROBLEM2.joinpath(*parts).with_suffix(".py")]
+        candidates.append(PROBLEM2.joinpath(*parts, "__init__.py"))
+        path = next((p for p in candidates if p.exists()), None)
+        if name in seen or path is None:
+            continue
+        seen[name] = path
+        todo += sorted(imported_modules(path))
+    return seen
+
+
+@pytest.mark.parametrize("path", sorted(PROBLEM2.glob("*.py")), ids=lambda p: p.name)
+def test_core_modules_import_no_subfolder(path: Path) -> None:
+    allowed = set(SUBFOLDERS) if path.name in COURSE_ENTRY_SCRIPTS else set()
+    assert top_packages(path) & set(SUBFOLDERS) <= allowed
+
+
+@pytest.mark.parametrize("path", sorted((PROBLEM2 / "analysis").glob("*.py")), ids=lambda p: p.name)
+def test_analysis_imports_no_study(path: Path) -> None:
+    assert "studies" not in top_packages(path)
+
+
+def test_the_checker_sees_subfolder_imports(tmp_path: Path) -> None:
+    sample = tmp_path / "sample.py"
+    sample.write_text("from analysis.stats import x\nimport studies.reward_study\n")
+    assert top_packages(sample) >= {"analysis", "studies"}
+
+
+def test_train_py_needs_only_the_core() -> None:
+    closure = import_closure("train")
+    assert "trainer" in closure and "replay_buffer" in closure
+    assert not [name for name in closure if name.split(".")[0] in SUBFOLDERS]
+    assert all(path.parent == PROBLEM2 for path in closure.values())
+
+
+def test_every_default_update_runs_backward(tmp_path: Path, monkeypatch) -> None:
+    """A short run at the default settings: one autograd backward() per gradient update."""
+    calls = []
+    original = torch.Tensor.backward
+
+    def counted(self: torch.Tensor, *args, **kwargs) -> None:
+        calls.append(1)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(torch.Tensor, "backward", counted)
+    cfg = train.TrainConfig(
+        mode="full", seed=3, total_steps=3_000, learning_starts=1_000, eval_interval=3_000,
+        eval_episodes=4, output_dir=str(tmp_path),
+    ).validate()  # fmt: skip
+    env = load_problem_module("problem2", "multi_agent_env").MultiAgentEnv(seed=641)
+    trainer = train.MultiAgentTrainer(env, cfg)
+    trainer.train()
+    assert trainer.updates > 0 and len(calls) == trainer.updates
