@@ -187,7 +187,7 @@ class TrainConfig:
     """if positive, train for this many finished episodes instead of --total_steps"""
     num_envs: int = 64
     """parallel environments that collect experience"""
-    batch_size: int = 256
+    batch_size: int = 128
     """transitions per gradient update"""
     lr: float = 5e-4
     """Adam learning rate at the start (finite, > 0)"""
@@ -220,7 +220,7 @@ class TrainConfig:
     """replay capacity in joint transitions (at least batch_size)"""
     learning_starts: int = 5_000
     """env steps collected before the first update: batch_size or more, below total_steps"""
-    updates_per_step: int = 1
+    updates_per_step: int = 2
     """gradient updates per step of the parallel environments"""
     max_grad_norm: float = 10.0
     """gradient-norm clipping threshold (finite, > 0)"""
