@@ -8,7 +8,8 @@ RUNTIME_STAMP := $(VENV)/.runtime-installed
 DEV_STAMP     := $(VENV)/.dev-installed
 REPORT_STAMP  := $(VENV)/.report-installed
 
-.PHONY: all problem1 problem2 studies p2-baselines p2-main p2-studies p2-evaluate report test lint \
+.PHONY: all problem1 problem2 studies p2-baselines p2-main p2-studies p2-stability p2-evaluate report \
+	test lint \
 	bench clean
 
 all: problem1 problem2 report
@@ -32,14 +33,16 @@ $(REPORT_STAMP): report/requirements.txt | $(VENV)/bin/python
 problem1: $(RUNTIME_STAMP)
 	cd problem1 && $(PY) train.py && $(PY) stochasticity_study.py
 
-## Problem 2: baselines, the main experiment (3 modes x 10 seeds), its evaluation.
-## make retrains on purpose, so its runs replace earlier batches (--overwrite).
+## Problem 2: the baselines and the evaluation of the committed models (the main experiment
+## and the studies; `make studies` retrains them).
 P2_STUDIES := results/studies
-problem2: p2-baselines p2-main p2-evaluate
+problem2: p2-baselines p2-evaluate
 
 p2-baselines: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m analysis.baselines
 
+## The main experiment: 3 modes x 10 seeds of 300 k env steps (about 5 min on 2 cores).
+## It retrains on purpose, so its runs replace the earlier batch (--overwrite).
 p2-main: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) train.py --overwrite
 
@@ -50,11 +53,11 @@ p2-evaluate: $(RUNTIME_STAMP)
 ## The studies: the reward study (both rewards, 3 modes x 10 seeds, checkpoints chosen by
 ## the trained reward's own return, and the exact DP), messages without DIAL, a panel of maps,
 ## and agents trained on a pool of 2000 generated maps, tested on 40 held-out maps.
-studies: p2-studies p2-evaluate
+studies: p2-main p2-studies p2-evaluate
 
 p2-studies: $(RUNTIME_STAMP)
 	cd problem2 && for reward in per_step arrival; do \
-		$(PY) train.py --reward_mode $$reward --select_by return --overwrite \
+		$(PY) train.py --reward_mode $$reward --target_potential 0 --select_by return --overwrite \
 			--output_dir $(P2_STUDIES)/reward/$$reward || exit 1; done
 	cd problem2 && $(PY) -m studies.reward_study
 	cd problem2 && $(PY) train.py --mode comm,full --comm_learning none --num_seeds 3 \
@@ -63,6 +66,11 @@ p2-studies: $(RUNTIME_STAMP)
 		$(PY) train.py --map_seed $$map --num_seeds 3 --overwrite \
 			--output_dir $(P2_STUDIES)/map_panel/map$$map || exit 1; done
 	cd problem2 && $(PY) -m studies.map_pool_study
+	$(MAKE) p2-stability
+
+## Does learning hold its peak? Four settings x 3 modes x training seeds 100-103, last weights.
+p2-stability: $(RUNTIME_STAMP)
+	cd problem2 && $(PY) -m studies.stability_study --train
 
 ## The written report, built from the result files (seconds). Your name on the cover:
 ##   make report NAME="Full Name" EMAIL="you@usc.edu"   (only values given on this command line)

@@ -6,7 +6,9 @@ Used by ``python train.py``. For ``output_dir`` (default ``problem2/results``) i
   ``agent_models/<mode>_agent_{A,B}.pt``: the best seed of each mode (by the selection
   evaluation on validation episodes); ``agent_models/manifest.json`` (the batch: modes,
   seeds, map, every hyperparameter, code version, sha256 of every model);
-  ``agent_models/map.json``; ``agent_models/hyperparameters.json``.
+  ``agent_models/map.json``; ``agent_models/hyperparameters.json``;
+  ``agent_models/last_weights/<mode>_seed<seed>_agent_{A,B}.pt``: with ``--keep_best``,
+  the weights each run ended with (evaluated beside the selected ones).
 * ``training_logs/<mode>_seed<seed>.csv``: one row per periodic evaluation (appended as
   measured); ``training_logs/<mode>_seed<seed>_selection.json``: the selection evaluation;
   ``training_logs/training_curves.png``; ``training_logs/timing.json`` (wall times, the
@@ -42,7 +44,7 @@ from grid_maps import generate_map, save_map
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, VALIDATION_SEED, select_best
 from train_config import DEFAULT_OUTPUT_DIR, SettingError, TrainConfig
-from trainer import MultiAgentTrainer
+from trainer import LAST_WEIGHTS, MultiAgentTrainer
 
 PROBLEM2 = Path(__file__).resolve().parent
 MANIFEST = "manifest.json"
@@ -245,7 +247,7 @@ def train_batch(cfg: TrainConfig, models_dir: Path, logs_dir: Path) -> list[dict
                 shutil.copyfile(models_dir / f"{best[mode]}_agent_{agent}.pt", temporary)
     title = (
         f"Training progress on map seed {cfg.map_seed}"
-        + (f" (reward {cfg.reward_mode})" if cfg.reward_mode != "arrival" else "")
+        + (f" (reward {cfg.reward_mode})" if cfg.reward_mode != "goal" else "")
         + (", untrained messages" if cfg.comm_learning == "none" else "")
     )
     plot_training_curves(logs_dir, cfg.run_modes(), cfg.run_seeds(), title)
@@ -275,6 +277,11 @@ def manifest(
                 for condition in ("greedy", "eps")
             },
         }
+        last = {agent: f"{LAST_WEIGHTS}/{name}_agent_{agent}.pt" for agent in "AB"}
+        if all((models_dir / f).is_file() for f in last.values()):  # trained with keep_best
+            runs[name]["last_weights"] = {
+                "models": last, "sha256": {a: file_sha256(models_dir / f) for a, f in last.items()}
+            }  # fmt: skip
     return {"format": 1, **batch_identity(cfg), "code_version": code_version()} | {
         "runs": runs,
         "best": best,
@@ -319,28 +326,40 @@ def keep_interrupted(staging: Path, root: Path) -> None:
 
 
 # ------------------------------------------------------------------------------- figures
+CURVE_PANELS = (
+    ("eval_success_eps", "success rate", (0.0, 1.02)),
+    ("eval_return_eps", "average episode reward", None),
+)  # validation episodes at ε = 0.05, the reward trained on
+
+
 def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], title: str) -> Path:
-    """Evaluation return and success rate against env steps, mean over seeds, min–max band."""
+    """Validation success and return (ε = 0.05) against env steps, one column per mode:
+    every seed as a thin line (its last point is the weights the run ended with), the mean
+    over seeds and the interquartile band."""
     from matplotlib.figure import Figure  # here: a worker process never needs matplotlib
 
-    fig = Figure(figsize=(12, 4.4), layout="constrained")
-    axes = fig.subplots(1, 2)
-    panels = (("eval_return_eps", "average episode reward"), ("eval_success_eps", "success rate"))
-    for mode in modes:
+    fig = Figure(figsize=(4.0 * len(modes), 6.0), layout="constrained")
+    axes = np.asarray(fig.subplots(2, len(modes), sharey="row", squeeze=False))
+    for column, mode in enumerate(modes):
         logs = [read_csv(logs_dir / f"{run_name(mode, seed)}.csv") for seed in seeds]
         length = min(len(log) for log in logs)
         steps = np.array([row["env_steps"] for row in logs[0][:length]])
-        for ax, (key, _) in zip(axes, panels, strict=True):
+        colour = MODE_COLOURS.get(mode)
+        for ax, (key, label, limits) in zip(axes[:, column], CURVE_PANELS, strict=True):
             values = np.array([[row[key] for row in log[:length]] for log in logs])
-            colour = MODE_COLOURS.get(mode)
-            ax.plot(steps, values.mean(axis=0), color=colour, label=mode)
-            ax.fill_between(steps, values.min(axis=0), values.max(axis=0), color=colour, alpha=0.2)
-    for ax, (_, label) in zip(axes, panels, strict=True):
-        ax.set_xlabel("environment steps")
-        ax.set_ylabel(f"{label} (validation, ε = 0.05)")
-        ax.grid(True, alpha=0.3)
-    axes[1].set_ylim(0, 1)
-    axes[0].legend(title=f"mode (mean of {len(seeds)} seeds, band min–max)")
+            for run in values:
+                ax.plot(steps, run, color=colour, alpha=0.35, linewidth=0.7)
+            low, high = np.percentile(values, [25, 75], axis=0)
+            ax.fill_between(steps, low, high, color=colour, alpha=0.25, label="interquartile")
+            ax.plot(steps, values.mean(axis=0), color=colour, linewidth=2.2, label="mean")
+            if limits:
+                ax.set_ylim(*limits)
+            if column == 0:
+                ax.set_ylabel(f"{label}\n(validation, ε = 0.05)")
+            ax.grid(True, alpha=0.3)
+        axes[0, column].set_title(f"{mode} ({len(seeds)} seeds, thin: each seed)")
+        axes[1, column].set_xlabel("environment steps")
+    axes[0, 0].legend(loc="lower right")
     fig.suptitle(title)
     path = logs_dir / "training_curves.png"
     with temporary_path_for(path) as temporary:

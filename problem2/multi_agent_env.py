@@ -121,9 +121,9 @@ class MultiAgentEnv:
 
         The team reward, one value per step (``vector_env.team_rewards``): +10 when both
         agents stand on the target (the episode ends); with the default ``per_step`` +2 on
-        every step on which exactly one stands on it; with ``arrival`` (what the trainer
-        learns from) +2 on the step on which an agent first reaches it in the episode;
-        -0.1 otherwise."""
+        every step on which exactly one stands on it; with ``arrival`` +2 on the step on
+        which an agent first reaches it in the episode; -0.1 otherwise (``goal``, which the
+        trainer learns from with its potential-based arrival term, pays no +2)."""
         actions = np.array([[_action(action_A, "action_A"), _action(action_B, "action_B")]])
         messages = np.array([[_message(comm_A, "comm_A"), _message(comm_B, "comm_B")]])
         obs, rewards, terminated, truncated, _ = self._vector.step(actions, messages)

@@ -177,11 +177,16 @@ class TrainConfig:
     """grid side (--grid_size 10) or rows and columns (--grid_size 10 10), each 3..100"""
     max_steps: int = 50
     """episode time limit (a cut-off, not a terminal state: the TD target bootstraps through it)"""
-    reward_mode: str = "arrival"
-    """reward learned from: arrival (+2 on a step on which an agent first reaches the target)
-    or per_step (the assignment's table: +2 on every step with exactly one agent on it); both
-    +10 when both stand on the target, -0.1 otherwise, one team value per step"""
-    total_steps: int = 200_000
+    reward_mode: str = "goal"
+    """reward learned from (vector_env.team_rewards): goal (+10 when both stand on the target,
+    -0.1 otherwise; with --target_potential the arrival term), per_step (the assignment's
+    table: +2 on every step with exactly one agent on the target) or arrival (+2 on a step
+    on which an agent first reaches it); one team value per step"""
+    target_potential: float = 4.0
+    """potential-based shaping for learning only (Ng et al. 1999), >= 0: adds
+    gamma * Phi(s') - Phi(s) with Phi = this value per agent on the target (an arrival pays
+    about +Phi, a departure costs Phi; 0 = none)"""
+    total_steps: int = 300_000
     """environment steps per run, summed over the parallel environments (1 or more)"""
     num_episodes: int = 0
     """if positive, train for this many finished episodes instead of --total_steps"""
@@ -205,7 +210,7 @@ class TrainConfig:
     epsilon_decay: float = 0.0
     """the course skeleton's multiplicative factor in (0, 1): after each finished episode
     epsilon <- max(epsilon_end, epsilon * factor) (e.g. 0.995); 0 = linear schedule"""
-    epsilon_fraction: float = 0.5
+    epsilon_fraction: float = 0.3
     """with --epsilon_decay 0: fraction (0, 1] of the run over which epsilon falls linearly"""
     hidden_dim: int = 128
     """units of the hidden layer"""
@@ -224,6 +229,12 @@ class TrainConfig:
     """gradient updates per step of the parallel environments"""
     max_grad_norm: float = 10.0
     """gradient-norm clipping threshold (finite, > 0)"""
+    advantage_learning: float = 0.95
+    """alpha in [0, 1) of advantage learning (Bellemare et al. 2016): the TD target minus
+    alpha (max_b Q_target(s, b) - Q_target(s, a)), which widens the gaps between the actions'
+    values so that estimation noise no longer decides the greedy action; 0 = plain Double DQN"""
+    advantage_learning_ramp: float = 0.3
+    """fraction (0, 1] of the run over which alpha rises linearly from 0 to advantage_learning"""
     comm_learning: str = "dial"
     """dial: train the message head through the partner's TD loss; none: leave it untrained"""
     comm_noise: float = 1.0
@@ -321,7 +332,8 @@ FIELD_CHECKS: dict[str, Check] = {
     "map_seed": int_in(0, MAX_SEED),
     "grid_size": grid_sides_in(3, MAX_GRID_SIDE),
     "max_steps": int_in(1),
-    "reward_mode": one_of("arrival", "per_step"),
+    "reward_mode": one_of("goal", "per_step", "arrival"),
+    "target_potential": number_in(0.0, math.inf, high_open=True),
     "total_steps": int_in(1),
     "num_episodes": int_in(0),
     "num_envs": int_in(1),
@@ -341,6 +353,8 @@ FIELD_CHECKS: dict[str, Check] = {
     "learning_starts": int_in(0),
     "updates_per_step": int_in(1),
     "max_grad_norm": number_in(0.0, math.inf, low_open=True, high_open=True),
+    "advantage_learning": number_in(0.0, 1.0, high_open=True),
+    "advantage_learning_ramp": number_in(0.0, 1.0, low_open=True),
     "comm_learning": one_of("dial", "none"),
     "comm_noise": number_in(0.0, math.inf, high_open=True),
     "dueling": boolean,

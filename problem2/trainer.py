@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-from grid_maps import NUM_ACTIONS, training_maps, validation_maps
+from grid_maps import NUM_ACTIONS, TARGET, training_maps, validation_maps
 from models import PairedQNetworks, export_policy, observation_mask
 from multi_agent_env import MultiAgentEnv
 from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
@@ -43,6 +43,7 @@ from rollout import (
 from train_config import TrainConfig
 from vector_env import VectorMultiAgentEnv
 
+LAST_WEIGHTS = "last_weights"  # subfolder of agent_models/: each run's final weights (keep_best)
 LOG_FIELDS = (
     "env_steps", "episodes", "updates", "epsilon", "loss", "mean_q", "train_return",
     "train_success", "eval_success_greedy", "eval_success_eps", "eval_return_greedy",
@@ -248,10 +249,25 @@ class MultiAgentTrainer:
         rng = np.random.default_rng(seed)
         return lambda obs, positions: self.act(obs, epsilon, rng, noisy_messages=False)
 
-    def learning_rewards(self, rewards: np.ndarray, info: dict[str, np.ndarray]) -> np.ndarray:
-        """The team rewards (N,) plus the optional shaping, which only learning sees:
-        ``coverage_bonus`` per newly seen cell, ``on_target_bonus`` per agent on the target."""
+    def learning_rewards(
+        self, rewards: np.ndarray, info: dict[str, np.ndarray], obs: np.ndarray
+    ) -> np.ndarray:
+        """The team rewards (N,) plus the terms only learning sees: the potential-based
+        arrival term γ Φ(s') − Φ(s), Φ = ``target_potential`` per agent on the target (``obs``
+        (N, 2, D) before the step: an agent is on the target when its patch's centre is);
+        ``coverage_bonus`` per newly seen cell; ``on_target_bonus`` per agent on the target.
+
+        The arrival term pays about +Φ for every arrival and charges Φ for every departure,
+        so leaving and coming back earns nothing. (The ``arrival`` reward pays +2 only on an
+        agent's first arrival, which its observation does not show: an agent waiting on the
+        target then values stepping off and back on as if it paid again.) Being
+        potential-based, it leaves the optimal policy of the goal reward unchanged."""
         cfg = self.cfg
+        if cfg.target_potential > 0:
+            centre = self.env.obs_window**2 // 2
+            before = (obs[:, :, centre] == TARGET).sum(axis=1)
+            after = info["on_target"].sum(axis=1)
+            rewards = rewards + cfg.target_potential * (cfg.gamma * after - before)
         if cfg.on_target_bonus > 0:
             rewards = rewards + cfg.on_target_bonus * info["on_target"].sum(axis=1)
         if cfg.coverage_bonus > 0 and "newly_seen" in info:
@@ -314,7 +330,9 @@ class MultiAgentTrainer:
 
         y = R + d · Q_target(s', argmax_a Q_online(s', a))  (Double DQN), where R is the
         discounted reward of k <= n steps and d = γ^k, 0 where both reached the target
-        (the only terminal: the time limit is a cut-off and is bootstrapped through).
+        (the only terminal: the time limit is a cut-off and is bootstrapped through);
+        with advantage learning y − α (max_b Q_target(s, b) − Q_target(s, a)), α from
+        :meth:`advantage_learning_alpha`.
         Returns (loss with gradient, TD errors δ (2, B), Q(s, a) (2, B)), the last two
         detached."""
         obs, next_obs = batch.obs * self.mask, batch.next_obs * self.mask
@@ -324,6 +342,11 @@ class MultiAgentTrainer:
             best_next = self.online(next_obs)[0].max(dim=-1, keepdim=True).indices
             next_value = self.target(next_obs)[0].gather(-1, best_next)[..., 0]
             target = batch.reward + batch.discount * next_value
+            alpha = self.advantage_learning_alpha()
+            if alpha > 0:  # advantage learning: minus the action gap at s (target networks)
+                q_target = self.target(obs)[0]
+                taken = q_target.gather(-1, batch.actions.unsqueeze(-1))[..., 0]
+                target = target - alpha * (q_target.max(dim=-1).values - taken)
         q_taken = self.online(obs)[0].gather(-1, batch.actions.unsqueeze(-1))[..., 0]
         per_sample = F.smooth_l1_loss(q_taken, target, reduction="none")  # (2, B)
         loss = (per_sample * batch.weights).mean(dim=1).sum()
@@ -416,6 +439,12 @@ class MultiAgentTrainer:
         fraction = min(1.0, self.progress() / cfg.epsilon_fraction)
         return cfg.epsilon_start + fraction * (cfg.epsilon_end - cfg.epsilon_start)
 
+    def advantage_learning_alpha(self) -> float:
+        """α of advantage learning: linear from 0 to ``advantage_learning`` over the first
+        ``advantage_learning_ramp`` of the run, then constant."""
+        cfg = self.cfg
+        return cfg.advantage_learning * min(1.0, self.progress() / cfg.advantage_learning_ramp)
+
     def learning_rate(self) -> float:
         """Linear from lr to lr * lr_end_factor over the run."""
         return self.cfg.lr * (1.0 + self.progress() * (self.cfg.lr_end_factor - 1.0))
@@ -435,7 +464,7 @@ class MultiAgentTrainer:
         actions, messages = self.act(rollout.obs, self.epsilon, self.rng, noisy_messages=True)
         next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
         # 3. Store. Only "both on target" is terminal; the time limit is a cut-off.
-        learned = self.learning_rewards(rewards, info)
+        learned = self.learning_rewards(rewards, info, rollout.obs)
         self.store(rollout, actions, messages, learned, info["final_obs"], terminated, truncated)
         finished = terminated | truncated
         returns = rollout.advance(next_obs, rewards, finished)
@@ -468,7 +497,8 @@ class MultiAgentTrainer:
                 next_evaluation += cfg.eval_interval
             self.step(rollout, cfg.updates_per_step)
         self.evaluate_and_log(progress)
-        if cfg.keep_best:
+        if cfg.keep_best:  # the weights the run ended with stay beside the selected ones
+            self.save_models(self.models_dir / LAST_WEIGHTS)
             self.online.load_state_dict(self.best_checkpoint().state)
         self.save_models()
         return self.log
@@ -568,11 +598,12 @@ class MultiAgentTrainer:
         with open(self.log_path, "w", newline="", encoding="utf-8") as handle:
             csv.DictWriter(handle, LOG_FIELDS, lineterminator="\n").writeheader()
 
-    def save_models(self) -> list[Path]:
-        """Export both agents (TorchScript, mask inside) as ``<mode>_seed<seed>_agent_X.pt``."""
+    def save_models(self, folder: Path | None = None) -> list[Path]:
+        """Export both agents (TorchScript, mask inside) as ``<mode>_seed<seed>_agent_X.pt``
+        into ``folder`` (default: ``models_dir``)."""
+        folder = self.models_dir if folder is None else folder
+        folder.mkdir(parents=True, exist_ok=True)
         return [
-            export_policy(
-                self.online.agent(i), self.mode, self.models_dir / f"{self.name}_agent_{a}.pt"
-            )
+            export_policy(self.online.agent(i), self.mode, folder / f"{self.name}_agent_{a}.pt")
             for i, a in enumerate("AB")
         ]

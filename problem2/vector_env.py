@@ -30,7 +30,7 @@ from grid_maps import (
 BOTH_ON_TARGET_REWARD = 10.0
 ARRIVAL_REWARD = 2.0
 STEP_REWARD = -0.1
-REWARD_MODES = ("per_step", "arrival")  # the first is the default: the assignment's table
+REWARD_MODES = ("per_step", "arrival", "goal")  # the first is the default: the assignment's table
 MAX_TABULATED_CELLS = 4096  # padded cells; the (P, P) float32 table is then ≤ 64 MiB
 
 
@@ -39,20 +39,26 @@ def team_rewards(on_target: np.ndarray, first_arrival: np.ndarray, reward_mode: 
     target now (``on_target`` (N, 2) bool) and which of them reach it for the first time
     in the episode (``first_arrival`` (N, 2) bool).
 
-    ================================  ====================  =====================
-    after the joint move              ``per_step`` (default) ``arrival`` (trained)
-    ================================  ====================  =====================
-    both agents on the target (ends)  +10                   +10
-    exactly one agent on the target   +2 (every such step)  -0.1 (+2 on arrival)
-    an agent first reaches the target +2 / -0.1 as above    +2
-    otherwise                         -0.1                  -0.1
-    ================================  ====================  =====================
+    ================================  =====================  ==============  ========
+    after the joint move              ``per_step`` (default)  ``arrival``     ``goal``
+    ================================  =====================  ==============  ========
+    both agents on the target (ends)  +10                    +10             +10
+    exactly one agent on the target   +2 (every such step)   -0.1            -0.1
+    an agent first reaches the target +2 / -0.1 as above     +2              -0.1
+    otherwise                         -0.1                   -0.1            -0.1
+    ================================  =====================  ==============  ========
+
+    The trainer learns from ``goal`` plus its potential-based arrival term
+    (``MultiAgentTrainer.learning_rewards``), which pays every arrival and charges every
+    departure, so that what it pays is visible in the agent's own patch.
     """
     both = on_target[:, 0] & on_target[:, 1]
     if reward_mode == "per_step":
         pays_bonus = on_target[:, 0] != on_target[:, 1]  # exactly one on the target
-    else:
+    elif reward_mode == "arrival":
         pays_bonus = first_arrival.any(axis=1)
+    else:
+        pays_bonus = np.zeros(len(on_target), dtype=bool)
     rewards = np.where(pays_bonus, ARRIVAL_REWARD, STEP_REWARD)
     rewards[both] = BOTH_ON_TARGET_REWARD
     return rewards
@@ -79,10 +85,13 @@ class VectorMultiAgentEnv:
       * ``reward_mode="per_step"`` (default, the assignment's table): +10 when both agents
         stand on the target (the episode terminates), +2 on every step on which exactly one
         agent stands on it, -0.1 otherwise.
-      * ``reward_mode="arrival"`` (the shaped reward the trainer learns from): +10 when both
-        stand on the target (terminates), +2 on a step on which an agent reaches the target
-        for the first time in the episode, -0.1 otherwise. Leaving and coming back pays
-        nothing; an agent placed on the target at the start has already "arrived".
+      * ``reward_mode="arrival"`` (an earlier trained reward, kept for the reward study):
+        +10 when both stand on the target (terminates), +2 on a step on which an agent
+        reaches the target for the first time in the episode, -0.1 otherwise. Leaving and
+        coming back pays nothing; an agent placed on the target at the start has already
+        "arrived".
+      * ``reward_mode="goal"`` (what the trainer learns from, with its potential-based
+        arrival term): +10 when both stand on the target (terminates), -0.1 otherwise.
     ``truncated`` is set when ``max_steps`` steps pass without termination.
     """
 

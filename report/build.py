@@ -25,6 +25,7 @@ MAIN = Path("report") / "report.typ"  # relative to the root
 OPTIONAL_INPUTS = {
     "reward-study": "problem2/results/studies/reward/reward_study.json",
     "map-pool-study": "problem2/results/studies/map_pool/map_pool.json",
+    "stability-study": "problem2/results/studies/stability/stability.json",
 }
 
 

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, EpisodeResults
 
 from analysis.baselines import POLICIES
@@ -48,6 +49,7 @@ from analysis.messages import (
 from analysis.runs import (
     Experiment,
     best_seed,
+    load_checked_policy,
     relative_models_dir,
 )
 from analysis.stats import BOOTSTRAP_RESAMPLES, mode_differences, seed_statistics
@@ -146,6 +148,30 @@ def _intervention_tests(
     return tests
 
 
+def last_weights_performance(
+    experiment: Experiment, mode: str, seed: int, num_episodes: int, epsilon: float
+) -> dict[str, dict] | None:
+    """Test results (greedy and ε) of the weights run (``mode``, ``seed``) ended with, on the
+    same test episodes as its selected weights; None where the manifest lists none (a run
+    without ``keep_best``, or a folder without manifest)."""
+    run = ((experiment.manifest or {}).get("runs") or {}).get(f"{mode}_seed{seed}") or {}
+    if "last_weights" not in run:
+        return None
+    paths = [experiment.models_dir / run["last_weights"]["models"][agent] for agent in "AB"]
+    env = MultiAgentEnv(grid=experiment.grid, max_steps=int(experiment.settings["max_steps"]))
+    evaluator = MultiAgentEvaluator(
+        env, *(load_checked_policy(path) for path in paths), epsilon=epsilon,
+        names=tuple(str(path) for path in paths),
+    )  # fmt: skip
+    runs = evaluator.run_conditions(num_episodes)
+    target = evaluator.setting.target
+    return {
+        name: episode_summary(runs[name], target, evaluator.conditions[name])
+        | {"failure_decomposition": failure_decomposition(runs[name], target)}
+        for name in CONDITIONS
+    }
+
+
 def evaluate_mode(
     experiment: Experiment, mode: str, num_episodes: int, epsilon: float
 ) -> tuple[dict, dict, dict[str, EpisodeResults], dict[str, np.ndarray]]:
@@ -162,6 +188,9 @@ def evaluate_mode(
             | {"failure_decomposition": failure_decomposition(runs[name], target)}
             for name in CONDITIONS
         }
+        last = last_weights_performance(experiment, mode, seed, num_episodes, epsilon)
+        if last is not None:
+            per_seed_perf[str(seed)]["last_weights"] = last
         q_functions = tuple(
             (lambda obs, m=m: m(torch.from_numpy(obs))[0].detach().numpy())
             for m in (evaluator.model_A, evaluator.model_B)
@@ -183,6 +212,11 @@ def evaluate_mode(
         **{name: aggregate([p[name] for p in per_seed_perf.values()]) for name in CONDITIONS},
         "per_seed": per_seed_perf,
     }
+    if all("last_weights" in p for p in per_seed_perf.values()):
+        performance["last_weights"] = {
+            name: aggregate([p["last_weights"][name] for p in per_seed_perf.values()])
+            for name in CONDITIONS
+        }
     communication: dict[str, Any] = {"label": experiment.label(mode), "per_seed": per_seed_comm}
     communication["measures"] = aggregate_measures([c["measures"] for c in per_seed_comm.values()])
     tests = _intervention_tests(evaluators, seed_runs, mode, num_episodes)

@@ -39,7 +39,7 @@ DEFAULT_SETTINGS = {
     "map_seed": DEFAULT_MAP_SEED,
     "grid_size": 10,
     "max_steps": 50,
-    "reward_mode": "arrival",
+    "reward_mode": "goal",
     "comm_learning": "dial",
 }
 
@@ -59,7 +59,7 @@ class Experiment:
     def label(self, mode: str) -> str:
         """Row label of ``mode`` in tables, e.g. ``full (per_step reward)``."""
         extras = []
-        if self.settings.get("reward_mode", "arrival") != "arrival":
+        if self.settings.get("reward_mode", "goal") != "goal":
             extras.append(f"{self.settings['reward_mode']} reward")
         if mode != "independent" and self.settings.get("comm_learning", "dial") != "dial":
             extras.append("message untrained (no DIAL)")
@@ -118,6 +118,9 @@ def _check_manifest_files(models_dir: Path, manifest: dict) -> dict[str, int]:
     for run in manifest["runs"].values():
         for agent in "AB":
             expected[run["models"][agent]] = run["sha256"][agent]
+            if "last_weights" in run:  # the run's final weights, in a subfolder
+                last = run["last_weights"]
+                expected[last["models"][agent]] = last["sha256"][agent]
     best: dict[str, int] = {}
     for mode, run_name in (manifest.get("best") or {}).items():
         run = manifest["runs"].get(run_name)

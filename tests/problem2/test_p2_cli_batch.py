@@ -61,7 +61,7 @@ def test_manifest_describes_the_batch_and_matches_its_files(batch: Path) -> None
     manifest = json.loads((models / "manifest.json").read_text(encoding="utf-8"))
     assert manifest["format"] == 1
     assert (manifest["modes"], manifest["seeds"]) == (["full"], [1, 2])
-    assert (manifest["map_seed"], manifest["reward_mode"]) == (641, "arrival")
+    assert (manifest["map_seed"], manifest["reward_mode"]) == (641, "goal")
     hyperparameters = json.loads((models / "hyperparameters.json").read_text(encoding="utf-8"))
     assert manifest["hyperparameters"] == hyperparameters
     assert "output_dir" not in hyperparameters and "workers" not in hyperparameters
@@ -160,7 +160,7 @@ def test_non_default_settings_do_not_go_into_the_default_folder(
     assert exit_info.value.code == 2
     message = capsys.readouterr().err
     assert "default results folder" in message and "--output_dir" in message
-    assert "--overwrite" in message and "total_steps 200000 -> 1536" in message
+    assert "--overwrite" in message and "total_steps 300000 -> 1536" in message
     assert not default.exists()
 
 

@@ -128,10 +128,11 @@ ARRIVE_LEAVE_RETURN = [(RIGHT, STAY), (STAY, RIGHT), (LEFT, STAY), (RIGHT, STAY)
 EXPECTED = {
     "arrival": [2.0, -0.1, -0.1, -0.1, -0.1, 10.0],
     "per_step": [2.0, 2.0, -0.1, 2.0, 2.0, 10.0],
+    "goal": [-0.1, -0.1, -0.1, -0.1, -0.1, 10.0],
 }
 
 
-@pytest.mark.parametrize("mode", ["arrival", "per_step"])
+@pytest.mark.parametrize("mode", ["arrival", "per_step", "goal"])
 def test_reward_first_arrival_leaving_returning_and_both(mode: str) -> None:
     env = make_env((3, 2), (3, 0), reward_mode=mode)
     outcomes = run(env, ARRIVE_LEAVE_RETURN)
@@ -151,7 +152,7 @@ def test_second_agent_arrival_pays_its_own_bonus(mode: str) -> None:
     assert [d for _, d in outcomes] == [False, False, False, True]
 
 
-@pytest.mark.parametrize("mode", ["arrival", "per_step"])
+@pytest.mark.parametrize("mode", ["arrival", "per_step", "goal"])
 def test_both_arriving_on_the_same_step_pay_exactly_ten(mode: str) -> None:
     env = make_env((3, 2), (2, 3), reward_mode=mode)
     (_, reward, done) = env.step(RIGHT, DOWN, 0.0, 0.0)

@@ -128,7 +128,8 @@ def test_pools_are_deterministic_distinct_and_disjoint_from_the_test_maps() -> N
 def pool_trainer(tmp_path: Path, **settings) -> MultiAgentTrainer:
     cfg = TrainConfig(
         mode="full", seed=3, total_steps=10**9, num_envs=16, batch_size=32, learning_starts=32,
-        buffer_size=4096, map_pool=50, validation_maps=10, output_dir=str(tmp_path), **settings,
+        buffer_size=4096, map_pool=50, validation_maps=10, output_dir=str(tmp_path),
+        **{"target_potential": 0.0} | settings,  # the study's recipe: no arrival term
     ).validate()  # fmt: skip
     return MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
 
@@ -138,7 +139,7 @@ def collect(trainer: MultiAgentTrainer, steps: int) -> list[np.ndarray]:
     for _ in range(steps):
         actions, messages = trainer.act(rollout.obs, 1.0, trainer.rng, True)
         next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
-        learned.append(trainer.learning_rewards(rewards, info) - rewards)
+        learned.append(trainer.learning_rewards(rewards, info, rollout.obs) - rewards)
         trainer.store(rollout, actions, messages, rewards, info["final_obs"], terminated, truncated)
         rollout.advance(next_obs, rewards, terminated | truncated)
     return learned
