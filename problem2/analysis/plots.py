@@ -85,18 +85,29 @@ def representative_failure(
     return episode_trace(results, index, f"{FAILURE_KINDS[common]}, {label}")
 
 
+def longest_success(results: EpisodeResults, label: str) -> EpisodeTrace | None:
+    """The first of the longest successful episodes (the hardest start that succeeded)."""
+    successful = np.flatnonzero(results.successes)
+    if successful.size == 0:
+        return None
+    index = successful[np.argmax(results.lengths[successful])]
+    return episode_trace(results, int(index), f"longest, {label}")
+
+
 def representative_traces(
     runs: dict[str, EpisodeResults], target: tuple[int, int]
 ) -> list[EpisodeTrace | None]:
     """[successful, failed] episode, each from the greedy run if it has one, else from the
-    ε-greedy run (``runs`` keyed ``greedy`` and ``eps``); None where neither has one."""
+    ε-greedy run (``runs`` keyed ``greedy`` and ``eps``); where no episode failed, the
+    longest successful one instead of the failure; None where neither run has one."""
     order = [(name, "greedy" if name == "greedy" else "ε-greedy") for name in ("greedy", "eps")]
-    success = failure = None
+    success = failure = longest = None
     for name, label in order:
         if name in runs:
             success = success or representative_success(runs[name], label)
             failure = failure or representative_failure(runs[name], target, label)
-    return [success, failure]
+            longest = longest or longest_success(runs[name], label)
+    return [success, failure or longest]
 
 
 FONT_SIZES = {
@@ -145,8 +156,8 @@ def draw_paths(ax: Axes, trace: EpisodeTrace) -> None:
 def plot_trajectories(
     rows: list[tuple[str, list[EpisodeTrace | None]]], grid: np.ndarray, path: str | Path
 ) -> Path:
-    """One row per mode (label, [successful episode, failed episode]); None draws an empty
-    panel saying that no such episode occurred."""
+    """One row per mode (label, [successful episode, failed or longest successful episode]);
+    None draws an empty panel saying that no such episode occurred."""
     with legible():
         fig = Figure(figsize=(WIDTHS["trajectories"], 2.45 * len(rows) + 0.9), layout="constrained")
         _draw_trajectories(fig, rows, grid)
@@ -158,7 +169,7 @@ def _draw_trajectories(
 ) -> None:
     axes = np.atleast_2d(fig.subplots(len(rows), 2))
     for (label, traces), row_axes in zip(rows, axes, strict=True):
-        for ax, trace, kind in zip(row_axes, traces, ("successful", "failed"), strict=True):
+        for ax, trace, kind in zip(row_axes, traces, ("successful", "other"), strict=True):
             draw_map(ax, grid)
             ax.set_xticks(range(0, grid.shape[1], 2))
             if trace is None:
