@@ -110,6 +110,24 @@ def test_evaluate_writes_every_output(evaluated: tuple[dict, Path]) -> None:
     assert results["performance"] == performance
 
 
+def test_the_last_weights_are_tested_beside_the_selected_ones(
+    evaluated: tuple[dict, Path], tiny_root: Path
+) -> None:
+    """train.py keeps each run's final weights in last_weights/ (listed with their sha256 in
+    the manifest); evaluate.py tests them on the same episodes as the selected pair."""
+    _, output = evaluated
+    manifest = json.loads((tiny_root / "agent_models" / "manifest.json").read_text("utf-8"))
+    listed = manifest["runs"]["full_seed641"]["last_weights"]["models"]
+    assert listed == {a: f"last_weights/full_seed641_agent_{a}.pt" for a in "AB"}
+    full = json.loads((output / "performance.json").read_text("utf-8"))["experiments"]["main"]
+    full = full["modes"]["full"]
+    for condition in ("greedy", "eps"):
+        last = full["last_weights"][condition]
+        assert last["episodes_per_seed"] == full[condition]["episodes_per_seed"] == 200
+        per_seed = [full["per_seed"][str(s)]["last_weights"][condition] for s in (641, 642)]
+        assert last["success_rate"]["per_seed"] == [p["success_rate"] for p in per_seed]
+
+
 def test_communication_analysis_has_causal_test_and_verdict(evaluated: tuple[dict, Path]) -> None:
     _, output = evaluated
     analysis = json.loads((output / "communication_analysis.json").read_text())
