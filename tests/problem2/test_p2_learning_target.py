@@ -21,12 +21,13 @@ train = load_problem_module("problem2", "train")
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.\\w+` is deprecated:DeprecationWarning")
 
 
-def trained(**settings: object) -> train.MultiAgentTrainer:
-    """A trainer that has collected a little experience (no updates unless asked)."""
+def trained(output_dir: Path, **settings: object) -> train.MultiAgentTrainer:
+    """A trainer that has collected a little experience (no updates unless asked), writing
+    its models and log into ``output_dir`` (never the committed results)."""
     cfg = TrainConfig(
         **{"mode": "independent", "total_steps": 640, "num_envs": 64, "batch_size": 32,
            "learning_starts": 10**9, "eval_interval": 10**9, "eval_episodes": 4,
-           "keep_best": False} | settings,
+           "keep_best": False, "output_dir": str(output_dir)} | settings,
     )  # fmt: skip
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
     trainer.train()
@@ -50,15 +51,17 @@ def observations(on_target: list[bool]) -> np.ndarray:
         ([False, False], [False, False], lambda g, phi: 0.0),
     ],
 )
-def test_arrival_term_is_gamma_phi_after_minus_phi_before(before, after, expected) -> None:
-    trainer = trained(target_potential=4.0)
+def test_arrival_term_is_gamma_phi_after_minus_phi_before(
+    tmp_path: Path, before, after, expected
+) -> None:
+    trainer = trained(tmp_path, target_potential=4.0)
     info = {"on_target": np.array([after])}
     shaped = trainer.learning_rewards(np.array([-0.1]), info, observations(before))
     assert shaped[0] == pytest.approx(-0.1 + expected(trainer.cfg.gamma, 4.0))
 
 
-def test_leaving_the_target_and_coming_back_earns_nothing_but_the_wait() -> None:
-    trainer = trained(target_potential=4.0)
+def test_leaving_the_target_and_coming_back_earns_nothing_but_the_wait(tmp_path: Path) -> None:
+    trainer = trained(tmp_path, target_potential=4.0)
     gamma, path = trainer.cfg.gamma, [True, False, True]  # on, off, back on
     terms = [
         trainer.learning_rewards(
@@ -73,14 +76,14 @@ def test_leaving_the_target_and_coming_back_earns_nothing_but_the_wait() -> None
     )[0] == pytest.approx(gamma * 4.0)  # every arrival pays, not only the first
 
 
-def test_without_a_potential_the_rewards_pass_unchanged() -> None:
-    trainer = trained(target_potential=0.0)
+def test_without_a_potential_the_rewards_pass_unchanged(tmp_path: Path) -> None:
+    trainer = trained(tmp_path, target_potential=0.0)
     info = {"on_target": np.array([[True, False]])}
     assert trainer.learning_rewards(np.array([-0.1]), info, observations([False, False]))[0] == -0.1
 
 
-def test_advantage_learning_lowers_the_target_by_alpha_times_the_action_gap() -> None:
-    trainer = trained(advantage_learning=0.6, advantage_learning_ramp=0.5)
+def test_advantage_learning_lowers_the_target_by_alpha_times_the_action_gap(tmp_path: Path) -> None:
+    trainer = trained(tmp_path, advantage_learning=0.6, advantage_learning_ramp=0.5)
     assert trainer.progress() == 1.0 and trainer.advantage_learning_alpha() == pytest.approx(0.6)
     batch = trainer.sample(32)
     _, delta_al, q_taken = trainer.td_loss(batch)
@@ -95,8 +98,8 @@ def test_advantage_learning_lowers_the_target_by_alpha_times_the_action_gap() ->
     assert torch.allclose(delta_al - delta_plain, 0.6 * gap, atol=1e-5)
 
 
-def test_alpha_rises_linearly_over_the_ramp_then_stays() -> None:
-    trainer = trained(advantage_learning=0.9, advantage_learning_ramp=0.25)
+def test_alpha_rises_linearly_over_the_ramp_then_stays(tmp_path: Path) -> None:
+    trainer = trained(tmp_path, advantage_learning=0.9, advantage_learning_ramp=0.25)
     for spent, expected in [(0, 0.0), (80, 0.9 * 0.5), (160, 0.9), (640, 0.9)]:
         trainer.env_steps = spent
         assert trainer.advantage_learning_alpha() == pytest.approx(expected)
