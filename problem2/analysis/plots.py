@@ -222,9 +222,9 @@ def plot_interventions(modes: dict[str, dict], path: str | Path) -> Path:
               for channel, entry in channels.items()]  # fmt: skip
     with legible():
         fig = Figure(
-            figsize=(WIDTHS["interventions"], 1.7 * len(panels) + 0.9), layout="constrained"
+            figsize=(WIDTHS["interventions"], 1.3 * len(panels) + 0.9), layout="constrained"
         )
-        axes = np.atleast_1d(fig.subplots(len(panels), 1, squeeze=False)[:, 0])
+        axes = np.atleast_1d(fig.subplots(len(panels), 1, squeeze=False, sharex=True)[:, 0])
         for ax, (mode, channel, entry) in zip(axes, panels, strict=True):
             kinds = list(entry["greedy"]["delta_success"])
             rows = np.arange(len(kinds))
@@ -232,18 +232,18 @@ def plot_interventions(modes: dict[str, dict], path: str | Path) -> Path:
                 (-0.2, 0.2), (("greedy", "#4c72b0"), ("eps", "#dd8452")), strict=True
             ):
                 stats = [entry[condition]["delta_success"][k] for k in kinds]
-                means = np.array([s["mean"] for s in stats])
-                lows = np.array([s["ci95"][0] for s in stats])
-                highs = np.array([s["ci95"][1] for s in stats])
-                label = "greedy" if condition == "greedy" else "ε-greedy"
+                means = 100 * np.array([s["mean"] for s in stats])  # percentage points
+                lows = 100 * np.array([s["ci95"][0] for s in stats])
+                highs = 100 * np.array([s["ci95"][1] for s in stats])
+                label = "greedy" if condition == "greedy" else "ε = 0.05"
                 ax.barh(rows + offset, means, height=0.38, color=colour, label=label,
                         xerr=[means - lows, highs - means], capsize=2)  # fmt: skip
             ax.axvline(0, color="black", linewidth=0.8)
             ax.set_yticks(rows, [k.replace("_", " ") for k in kinds])
             ax.invert_yaxis()
             verdict = entry["eps"]["verdict"]
-            ax.set_title(f"{mode}: {channel} (verdict, ε-greedy: {verdict})")
-            ax.set_xlabel("Δ success vs the real input (95 % CI over seeds)")
+            ax.set_title(f"{mode}: {channel} (verdict at ε = 0.05: {verdict})")
+        axes[-1].set_xlabel("Δ success vs the real input (points; 95 % CI over seeds)")
         fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=2)
         fig.suptitle("What happens when an input channel is replaced")
         return save_figure(fig, path, dpi=200)
