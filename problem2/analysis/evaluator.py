@@ -311,18 +311,21 @@ class MultiAgentEvaluator:
 
 
 def experiment_evaluator(
-    experiment: Experiment, epsilon: float, mode: str | None = None, seed: int | None = None, **kw
-) -> MultiAgentEvaluator:
+    experiment: Experiment, epsilon: float, mode: str | None = None, seed: int | None = None,
+    models_dir: Path | None = None, **kw,
+) -> MultiAgentEvaluator:  # fmt: skip
     """An evaluator on ``experiment``'s map and time limit: of the pair (``mode``, ``seed``)
-    loaded from its models folder, or, without ``mode``, of ``kw["policy_factory"]``."""
+    loaded from ``models_dir`` (default: the experiment's models folder), or, without
+    ``mode``, of ``kw["policy_factory"]``."""
     settings = experiment.settings
     # Returns are reported under the assignment's reward (the env's default), whatever
     # reward the agents were trained on; success does not depend on the reward.
     env = MultiAgentEnv(grid=experiment.grid, max_steps=int(settings["max_steps"]))
     if mode is None:
         return MultiAgentEvaluator(env, epsilon=epsilon, **kw)
-    models = load_model_pair(experiment.models_dir, mode, seed)
-    names = tuple(str(path) for path in model_paths(experiment.models_dir, mode, seed))
+    models_dir = experiment.models_dir if models_dir is None else models_dir
+    models = load_model_pair(models_dir, mode, seed)
+    names = tuple(str(path) for path in model_paths(models_dir, mode, seed))
     return MultiAgentEvaluator(env, *models, epsilon=epsilon, names=names, **kw)
 
 

@@ -13,11 +13,11 @@ import argparse
 import time
 from dataclasses import dataclass, field
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, EpisodeResults
 
 from analysis.baselines import POLICIES
@@ -49,7 +49,6 @@ from analysis.messages import (
 from analysis.runs import (
     Experiment,
     best_seed,
-    load_checked_policy,
     relative_models_dir,
 )
 from analysis.stats import BOOTSTRAP_RESAMPLES, mode_differences, seed_statistics
@@ -148,28 +147,33 @@ def _intervention_tests(
     return tests
 
 
-def last_weights_performance(
-    experiment: Experiment, mode: str, seed: int, num_episodes: int, epsilon: float
-) -> dict[str, dict] | None:
-    """Test results (greedy and ε) of the weights run (``mode``, ``seed``) ended with, on the
-    same test episodes as its selected weights; None where the manifest lists none (a run
-    without ``keep_best``, or a folder without manifest)."""
-    run = ((experiment.manifest or {}).get("runs") or {}).get(f"{mode}_seed{seed}") or {}
-    if "last_weights" not in run:
-        return None
-    paths = [experiment.models_dir / run["last_weights"]["models"][agent] for agent in "AB"]
-    env = MultiAgentEnv(grid=experiment.grid, max_steps=int(experiment.settings["max_steps"]))
-    evaluator = MultiAgentEvaluator(
-        env, *(load_checked_policy(path) for path in paths), epsilon=epsilon,
-        names=tuple(str(path) for path in paths),
-    )  # fmt: skip
-    runs = evaluator.run_conditions(num_episodes)
+def condition_summaries(
+    evaluator: MultiAgentEvaluator, runs: dict[str, EpisodeResults]
+) -> dict[str, dict]:
+    """Per condition (greedy, ε) the episode summary of ``runs`` with its failure
+    decomposition."""
     target = evaluator.setting.target
     return {
         name: episode_summary(runs[name], target, evaluator.conditions[name])
         | {"failure_decomposition": failure_decomposition(runs[name], target)}
         for name in CONDITIONS
     }
+
+
+def last_weights_performance(
+    experiment: Experiment, mode: str, seed: int, num_episodes: int, epsilon: float
+) -> dict[str, dict] | None:
+    """:func:`condition_summaries` of the weights run (``mode``, ``seed``) ended with, on the
+    same test episodes as its selected weights; None where the manifest lists none (a run
+    without ``keep_best``, or a folder without manifest)."""
+    run = ((experiment.manifest or {}).get("runs") or {}).get(f"{mode}_seed{seed}") or {}
+    if "last_weights" not in run:
+        return None
+    folder = Path(run["last_weights"]["models"]["A"]).parent  # as the manifest lists them
+    evaluator = experiment_evaluator(
+        experiment, epsilon, mode, seed, models_dir=experiment.models_dir / folder
+    )
+    return condition_summaries(evaluator, evaluator.run_conditions(num_episodes))
 
 
 def evaluate_mode(
@@ -179,15 +183,10 @@ def evaluate_mode(
     per condition the per-episode successes of every seed (seeds, E), for the mode
     differences."""
     per_seed_perf, per_seed_comm, seed_runs, evaluators = {}, {}, {}, {}
-    target = tuple(int(v) for v in np.argwhere(experiment.grid == 2)[0])
     for seed in experiment.seeds[mode]:
         evaluator = evaluators[seed] = experiment_evaluator(experiment, epsilon, mode, seed)
         runs = seed_runs[seed] = evaluator.run_conditions(num_episodes)
-        per_seed_perf[str(seed)] = {
-            name: episode_summary(runs[name], target, evaluator.conditions[name])
-            | {"failure_decomposition": failure_decomposition(runs[name], target)}
-            for name in CONDITIONS
-        }
+        per_seed_perf[str(seed)] = condition_summaries(evaluator, runs)
         last = last_weights_performance(experiment, mode, seed, num_episodes, epsilon)
         if last is not None:
             per_seed_perf[str(seed)]["last_weights"] = last

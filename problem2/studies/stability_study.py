@@ -19,7 +19,6 @@ agents stepped onto the target per failed episode.
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 from typing import Any
 
@@ -28,9 +27,10 @@ import torch
 import train
 from analysis.episodes import EvaluationSetting, model_policy
 from analysis.failures import arrivals
+from analysis.runs import load_model_pair
 from batch_io import write_json_atomic
+from experiments import read_csv
 from grid_maps import load_map
-from models import load_policy
 from rollout import VALIDATION_SEED, run_episodes
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "stability"
@@ -61,10 +61,10 @@ DIAGNOSIS_EPISODES = 500
 
 def diagnose(models_dir: Path, mode: str, seed: int) -> dict[str, float | None]:
     """What the last weights of run (``mode``, ``seed``) do (see the module docstring)."""
-    grid = load_map(models_dir / "map.json")
-    target = tuple(int(v) for v in np.argwhere(grid == 2)[0])
-    models = [load_policy(models_dir / f"{mode}_seed{seed}_agent_{a}.pt") for a in "AB"]
-    env = EvaluationSetting(grid).make_env(100)
+    setting = EvaluationSetting(load_map(models_dir / "map.json"))
+    target = setting.target
+    models = load_model_pair(models_dir, mode, seed)
+    env = setting.make_env(100)
     results = run_episodes(
         env, model_policy(*models), DIAGNOSIS_EPISODES, seed=VALIDATION_SEED, record=True
     )
@@ -93,9 +93,8 @@ def diagnose(models_dir: Path, mode: str, seed: int) -> dict[str, float | None]:
 
 def read_curve(path: Path) -> tuple[list[int], list[float]]:
     """(env steps, validation success at ε) of one run's log."""
-    with open(path, encoding="utf-8", newline="") as handle:
-        rows = list(csv.DictReader(handle))
-    return [int(r["env_steps"]) for r in rows], [float(r["eval_success_eps"]) for r in rows]
+    rows = read_csv(path)
+    return [int(r["env_steps"]) for r in rows], [r["eval_success_eps"] for r in rows]
 
 
 def summarise_mode(logs_dir: Path, mode: str) -> dict[str, Any]:
