@@ -41,7 +41,7 @@ problem2: p2-baselines p2-evaluate
 p2-baselines: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m analysis.baselines
 
-## The main experiment: 3 modes x 10 seeds of 300 k env steps (about 5 min on 2 cores).
+## The main experiment: 3 modes x 10 seeds of 300 k env steps (about 6 min on 2 cores).
 ## It retrains on purpose, so its runs replace the earlier batch (--overwrite).
 p2-main: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) train.py --overwrite
