@@ -8,7 +8,7 @@ RUNTIME_STAMP := $(VENV)/.runtime-installed
 DEV_STAMP     := $(VENV)/.dev-installed
 REPORT_STAMP  := $(VENV)/.report-installed
 
-.PHONY: all problem1 problem2 studies p2-baselines p2-main p2-studies p2-stability p2-evaluate report \
+.PHONY: all problem1 problem2 studies p2-baselines p2-main p2-studies p2-stability p2-memory p2-evaluate report \
 	test lint \
 	bench clean
 
@@ -71,6 +71,11 @@ p2-studies: $(RUNTIME_STAMP)
 ## Does learning hold its peak? Four settings x 3 modes x training seeds 100-103, last weights.
 p2-stability: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.stability_study --train
+
+## Agents with memory (GRU) on the map pool: 4 modes x 5 seeds, tested on the held-out maps
+## (about 30 min; reads the map-pool study's results; not part of `make studies`).
+p2-memory: $(RUNTIME_STAMP)
+	cd problem2 && $(PY) -m studies.memory.study
 
 ## The written report, built from the result files (seconds). Your name on the cover:
 ##   make report NAME="Full Name" EMAIL="you@usc.edu"   (only values given on this command line)

@@ -26,6 +26,7 @@ OPTIONAL_INPUTS = {
     "reward-study": "problem2/results/studies/reward/reward_study.json",
     "map-pool-study": "problem2/results/studies/map_pool/map_pool.json",
     "stability-study": "problem2/results/studies/stability/stability.json",
+    "memory-study": "problem2/results/studies/memory/memory.json",
 }
 
 

@@ -1,0 +1,148 @@
+"""Levers that might make a receiver listen, tried on training seeds (never the study's).
+
+Each setting trains GRU agents of the memory study's recipe (``study.RECIPE``) in the
+modes that hear a message, on training seeds 100 and up, and is judged on the validation
+maps only (the held-out maps are never used for a choice): the best checkpoint's and the
+last evaluation's success, greedy and at ε = 0.05. Settings (``SETTINGS``): the recipe, DIAL
+noise σ = 2 on the message logit (the DIAL paper's; 1 in the recipe), potential-based
+shaping by the agents' distance, a positive-listening loss, a positive-signalling loss,
+and runs twice as long.
+
+``python -m studies.memory.levers`` writes ``results/studies/memory_levers/levers.json``
+(and the runs' training logs beside it) and prints one line per setting.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from analysis.stats import seed_statistics
+from batch_io import ProgressLine, run_jobs, write_json_atomic
+from multi_agent_env import MultiAgentEnv
+from train_config import SettingError, TrainConfig, available_cores
+
+from studies.memory.learner import Levers, RecurrentTrainer
+from studies.memory.study import RECIPE, RESULTS
+
+OUTPUT_DIR = RESULTS / "memory_levers"
+SETTINGS: dict[str, dict[str, Any]] = {
+    "recipe": {},
+    "dial_noise_2": {"comm_noise": 2.0},
+    "distance_shaping": {"levers": Levers(distance_potential=1.0)},
+    "listening_loss": {"levers": Levers(listening=0.1)},
+    "signalling_loss": {"levers": Levers(signalling=0.1)},
+    "twice_as_long": {"total_steps": 2 * RECIPE["total_steps"]},
+}
+TRAINING_SEEDS = (100, 101)
+LEVER_MODES = ("full",)
+
+
+def train_setting(
+    cfg: TrainConfig, setting: str, mode: str, seed: int, folder: Path, progress: Any = None
+) -> dict[str, Any]:
+    """Train one (setting, mode, seed); its validation results."""
+    torch.set_num_threads(1)
+    start = time.perf_counter()
+    changes = dict(SETTINGS[setting])
+    levers = changes.pop("levers", Levers())
+    run_cfg = dataclasses.replace(cfg, seed=seed, seeds=[], workers=1, **changes)
+    env = MultiAgentEnv(grid_size=cfg.grid_shape(), max_steps=cfg.max_steps, seed=cfg.map_seed)
+    trainer = RecurrentTrainer(env, run_cfg, mode, levers)
+    trainer.models_dir = folder / setting / "agent_models"
+    trainer.logs_dir = folder / setting / "training_logs"
+
+    def report(row: dict[str, Any]) -> None:
+        if progress is not None:
+            progress.put((f"{setting}/{trainer.name}", row, time.perf_counter() - start))
+
+    log = trainer.train(report)
+    shutil.rmtree(trainer.models_dir, ignore_errors=True)  # judged by validation only
+    last = log[-1]
+    return {
+        "setting": setting,
+        "mode": mode,
+        "seed": seed,
+        "best": trainer.best_selection,
+        "best_env_steps": trainer.best_env_steps,
+        "final": {"greedy": last["eval_success_greedy"], "eps": last["eval_success_eps"]},
+        "seconds": round(time.perf_counter() - start, 1),
+    }
+
+
+def summarise(runs: list[dict]) -> dict[str, Any]:
+    settings: dict[str, Any] = {}
+    for run in runs:
+        entry = settings.setdefault(run["setting"], {}).setdefault(run["mode"], [])
+        entry.append(run)
+    return {
+        "description": "listening levers on training seeds, judged on the validation maps",
+        "settings": {
+            name: {
+                "changes": {
+                    k: (dataclasses.asdict(v) if isinstance(v, Levers) else v)
+                    for k, v in SETTINGS[name].items()
+                },
+                "modes": {
+                    mode: {
+                        "seeds": [r["seed"] for r in mine],
+                        **{
+                            f"{when}_{c}": seed_statistics([r[when][c] for r in mine])
+                            for when in ("best", "final")
+                            for c in ("greedy", "eps")
+                        },
+                    }
+                    for mode, mine in by_mode.items()
+                },
+            }
+            for name, by_mode in settings.items()
+        },
+        "runs": [{k: v for k, v in r.items() if k != "seconds"} for r in runs],
+    }
+
+
+def main(argv: list[str] | None = None) -> dict:
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="replace")
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--setting", default="all", help="all, or some of " + ", ".join(SETTINGS))
+    parser.add_argument("--workers", type=int, default=available_cores())
+    parser.add_argument("--output_dir", "--output-dir", type=Path, default=OUTPUT_DIR)
+    args = parser.parse_args(argv)
+    names = list(SETTINGS) if args.setting == "all" else args.setting.split(",")
+    unknown = [n for n in names if n not in SETTINGS]
+    if unknown:
+        parser.error(
+            f"--setting: unknown {', '.join(unknown)}; use all or some of {', '.join(SETTINGS)}"
+        )
+    try:
+        cfg = TrainConfig(**RECIPE | {"seeds": [], "workers": args.workers}).validate()
+        TrainConfig.check_field("workers", args.workers)
+    except SettingError as error:
+        parser.error(error.usage())
+    folder = Path(args.output_dir).resolve()
+    jobs = [(cfg, n, m, s, folder) for n in names for m in LEVER_MODES for s in TRAINING_SEEDS]
+    steps = max(SETTINGS[n].get("total_steps", cfg.total_steps) for n in names)
+    runs = run_jobs(train_setting, jobs, args.workers, ProgressLine(len(jobs), steps))
+    results = summarise(runs)
+    write_json_atomic(folder / "levers.json", results)
+    for name, entry in results["settings"].items():
+        for mode, stats in entry["modes"].items():
+            print(
+                f"{name:<18} {mode:<6} best eps {stats['best_eps']['mean']:.3f} "
+                f"final eps {stats['final_eps']['mean']:.3f} "
+                f"(seeds {np.round(stats['final_eps']['per_seed'], 3).tolist()})"
+            )
+    return results
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,448 @@
+"""Memory study: what the message, the distance and memory buy on maps that cannot be
+memorised.
+
+GRU agents (``agents.py``, trained by ``learner.py``) of the four modes of the channels'
+2 x 2 (independent, comm, distance, full) learn on the map pool of the map-pool study, with
+its recipe (``map_pool_study.RECIPE``) but for the sizes of sequence replay (``RECIPE``
+here), and are tested on the 40 held-out maps from their exported files (the memory
+contract), greedy and at ε = 0.05, 500 episodes per map. On the same test episodes, per
+run: the channel interventions (``analysis/interventions.py``: the message or the distance
+replaced by another episode's value at the same step, by the run's mean, by 0 or 1), what
+the message says (its mean on and off the target) and the homing share (while the partner
+stands on the target, how often a move brings the agent closer to it, farther, or neither),
+beside the beacon explorer's.
+
+The memoryless agents are the map-pool study's (``map_pool/map_pool.json``, the same seeds
+0–4): ``memory_minus_no_memory`` pairs each memory run with the memoryless run of its mode
+and seed. Outputs in ``results/studies/memory`` (written into a staging folder and moved
+into place whole): ``memory.json``, ``memory.png``, ``agent_models/``, ``training_logs/``,
+``timing.json`` (wall times: the only file that differs between identical reruns).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import json
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from analysis.baselines import POLICIES
+from analysis.interventions import intervene, intervention_table, real_steps
+from analysis.stats import seed_statistics
+from batch_io import (
+    ProgressLine,
+    remove_stale_temporaries,
+    run_jobs,
+    temporary_path_for,
+    write_json_atomic,
+)
+from grid_maps import HELD_OUT_MAP_SEEDS, held_out_maps
+from matplotlib.figure import Figure
+from models import DISTANCE_INDEX, MESSAGE_INDEX, load_policy
+from multi_agent_env import MultiAgentEnv
+from rollout import EVAL_EPSILON, EVAL_SEED, EpisodeResults, run_episodes
+from train_config import SettingError, TrainConfig, available_cores, check_value, int_in
+from vector_env import VectorMultiAgentEnv
+
+from studies import map_pool_study
+from studies.memory.agents import MEMORY_MODES, memory_policy
+from studies.memory.learner import RecurrentTrainer
+
+RESULTS = Path(__file__).resolve().parents[2] / "results" / "studies"
+STUDY_DIR = RESULTS / "memory"
+NO_MEMORY = RESULTS / "map_pool" / "map_pool.json"
+# One update of 16 stored episodes (batch_size // 16) per vector step of 64 copies; runs
+# of 400 k steps (a GRU update costs about ten feedforward ones).
+RECIPE: dict[str, Any] = map_pool_study.RECIPE | dict(
+    total_steps=400_000, updates_per_step=1, batch_size=256
+)
+CONDITIONS = {"greedy": 0.0, "eps": EVAL_EPSILON}
+CHANNELS = {
+    "message": (MESSAGE_INDEX, ("comm", "full")),
+    "distance": (DISTANCE_INDEX, ("distance", "full")),
+}
+PROBES = ("same_step", "constant_mean", "constant_0", "constant_1")
+DIFFERENCES = (
+    ("full", "independent"),
+    ("full", "distance"),
+    ("comm", "independent"),
+    ("distance", "independent"),
+)
+
+
+def homing_counts(results: EpisodeResults, target: tuple[int, int]) -> np.ndarray:
+    """(closer, farther, neither) counts (2,) summed over agents of the moves made while the
+    partner stood on the target and the agent did not (Manhattan distance to the target)."""
+    positions = results.trajectories["positions"]  # (E, T + 1, 2, 2)
+    distance = np.abs(positions - np.asarray(target)).sum(-1)  # (E, T + 1, 2)
+    on = distance == 0
+    steps = real_steps(results)[..., None]  # (E, T, 1)
+    waiting = steps & on[:, :-1, ::-1] & ~on[:, :-1]  # partner on the target, agent not
+    change = distance[:, 1:] - distance[:, :-1]
+    return np.array(
+        [
+            (waiting & (change < 0)).sum(),
+            (waiting & (change > 0)).sum(),
+            (waiting & (change == 0)).sum(),
+        ]
+    )
+
+
+def message_on_off(results: EpisodeResults, target: tuple[int, int]) -> np.ndarray:
+    """(sum on the target, count on, sum off, count off) of the messages sent (4,)."""
+    positions = results.trajectories["positions"][:, :-1]
+    on = (np.abs(positions - np.asarray(target)).sum(-1) == 0) & real_steps(results)[..., None]
+    off = ~on & real_steps(results)[..., None]
+    sent = np.nan_to_num(results.trajectories["messages"])
+    return np.array([sent[on].sum(), on.sum(), sent[off].sum(), off.sum()], dtype=np.float64)
+
+
+def test_on_held_out(agents: tuple, mode: str, episodes: int, max_steps: int) -> dict[str, Any]:
+    """Success, interventions, message encoding and homing of one run on the held-out maps."""
+    success = {c: [] for c in CONDITIONS}
+    probes = {
+        f"{channel}.{kind}": {c: [] for c in CONDITIONS}
+        for channel, (_, modes) in CHANNELS.items()
+        if mode in modes
+        for kind in PROBES
+    }
+    homing, encoding = np.zeros(3), np.zeros(4)
+    for map_seed, grid in zip(HELD_OUT_MAP_SEEDS, held_out_maps(), strict=True):
+        env = VectorMultiAgentEnv(episodes, grid=grid, max_steps=max_steps)
+        for label, epsilon in CONDITIONS.items():
+            policy = functools.partial(memory_policy, agents, env, epsilon, EVAL_SEED + map_seed)
+
+            real = run_episodes(env, policy(), episodes, seed=EVAL_SEED, record=True)
+            success[label].append(float(real.successes.mean()))
+            if label == "eps":
+                homing += homing_counts(real, env.target_position)
+                encoding += message_on_off(real, env.target_position)
+            for name in probes:
+                channel, kind = name.split(".")
+                index = CHANNELS[channel][0]
+                mean = float(
+                    real.trajectories["observations"][:, :-1, :, index][real_steps(real)].mean()
+                )
+                table = intervention_table(kind, real, index, constant=mean, seed=map_seed)
+                probed = run_episodes(
+                    env, intervene(policy(), env, table, index), episodes, seed=EVAL_SEED
+                )
+                probes[name][label].append(float(probed.successes.mean()) - success[label][-1])
+    return {
+        "success": {c: float(np.mean(v)) for c, v in success.items()},
+        "success_per_map": success,
+        "interventions": {
+            n: {c: float(np.mean(v)) for c, v in p.items()} for n, p in probes.items()
+        },
+        "homing_counts_eps": homing.tolist(),
+        "message_on_off_eps": encoding.tolist(),
+    }
+
+
+def train_and_test(
+    cfg: TrainConfig, mode: str, seed: int, staging: Path, episodes: int, progress: Any = None
+) -> dict[str, Any]:
+    """Train one (mode, seed) on the map pool into ``staging``, then test its exported pair."""
+    torch.set_num_threads(1)
+    start = time.perf_counter()
+    run_cfg = dataclasses.replace(cfg, seed=seed, seeds=[], workers=1)
+    env = MultiAgentEnv(grid_size=cfg.grid_shape(), max_steps=cfg.max_steps, seed=cfg.map_seed)
+    trainer = RecurrentTrainer(env, run_cfg, mode)
+    trainer.models_dir, trainer.logs_dir = staging / "agent_models", staging / "training_logs"
+
+    def report(row: dict[str, Any]) -> None:
+        if progress is not None:
+            progress.put((trainer.name, row, time.perf_counter() - start))
+
+    trainer.train(report)
+    trained = time.perf_counter() - start
+    agents = tuple(load_policy(trainer.models_dir / f"{trainer.name}_agent_{a}.pt") for a in "AB")
+    tested = test_on_held_out(agents, mode, episodes, cfg.max_steps)
+    return {
+        "mode": mode,
+        "seed": seed,
+        "selected_env_steps": trainer.best_env_steps,
+        "validation_success": trainer.best_selection,
+        **tested,
+        "seconds": {"training": trained, "total": time.perf_counter() - start},
+    }
+
+
+def beacon_homing(episodes: int, max_steps: int) -> list[float]:
+    """The beacon explorer's homing counts (closer, farther, neither) on the held-out maps."""
+    counts = np.zeros(3)
+    for map_seed, grid in zip(HELD_OUT_MAP_SEEDS, held_out_maps(), strict=True):
+        env = VectorMultiAgentEnv(episodes, grid=grid, max_steps=max_steps)
+        policy = POLICIES["beacon_explorer"](grid, EVAL_SEED + map_seed)
+        counts += homing_counts(
+            run_episodes(env, policy, episodes, seed=EVAL_SEED, record=True), env.target_position
+        )
+    return counts.tolist()
+
+
+def shares(counts: list[float]) -> dict[str, float]:
+    total = max(sum(counts), 1.0)
+    return dict(zip(("closer", "farther", "neither"), (c / total for c in counts), strict=True))
+
+
+def summarise(
+    cfg: TrainConfig, runs: list[dict], beacon: list[float], no_memory: dict | None
+) -> dict:
+    """The study's JSON (everything but wall times)."""
+    by_mode = {
+        m: [r for r in runs if r["mode"] == m]
+        for m in MEMORY_MODES
+        if any(r["mode"] == m for r in runs)
+    }
+    modes: dict[str, Any] = {}
+    for mode, mine in by_mode.items():
+        entry: dict[str, Any] = {
+            c: seed_statistics([r["success"][c] for r in mine]) for c in CONDITIONS
+        }
+        entry["seeds"] = [r["seed"] for r in mine]
+        entry["interventions_delta_success"] = {
+            name: {
+                c: seed_statistics([r["interventions"][name][c] for r in mine]) for c in CONDITIONS
+            }
+            for name in mine[0]["interventions"]
+        }
+        entry["homing_share_eps"] = shares(
+            np.sum([r["homing_counts_eps"] for r in mine], 0).tolist()
+        )
+        entry["homing_counts_eps"] = np.sum([r["homing_counts_eps"] for r in mine], 0).tolist()
+        if mode in CHANNELS["message"][1]:
+            sums = np.sum([r["message_on_off_eps"] for r in mine], 0)
+            entry["mean_message_eps"] = {
+                "on_target": sums[0] / max(sums[1], 1),
+                "off_target": sums[2] / max(sums[3], 1),
+            }
+        modes[mode] = entry
+    seeds_of = {m: {r["seed"]: r for r in mine} for m, mine in by_mode.items()}
+    differences = {}
+    for first, second in DIFFERENCES:
+        if first in seeds_of and second in seeds_of:
+            common = sorted(set(seeds_of[first]) & set(seeds_of[second]))
+            differences[f"{first}-{second}"] = {
+                c: seed_statistics(
+                    [
+                        seeds_of[first][s]["success"][c] - seeds_of[second][s]["success"][c]
+                        for s in common
+                    ]
+                )
+                for c in CONDITIONS
+            } | {"seeds": common}
+    memory_gain = {}
+    if no_memory is not None:
+        for mode, runs_of_mode in seeds_of.items():
+            paired = {s: no_memory["runs"].get(f"{mode}_seed{s}") for s in runs_of_mode}
+            common = sorted(s for s, r in paired.items() if r is not None)
+            if common:
+                memory_gain[mode] = {
+                    c: seed_statistics(
+                        [
+                            runs_of_mode[s]["success"][c] - paired[s]["held_out_mean"][c]
+                            for s in common
+                        ]
+                    )
+                    for c in CONDITIONS
+                } | {"seeds": common}
+    return {
+        "description": "GRU agents trained on a pool of generated maps, tested on held-out maps",
+        "protocol": {
+            "held_out_map_seeds": list(HELD_OUT_MAP_SEEDS),
+            "conditions": CONDITIONS,
+            "start_cells_seed": EVAL_SEED,
+            "policy_seed": f"{EVAL_SEED} + map seed",
+            "episodes_per_batch": cfg.batch_size // 16,
+            "homing": "moves made at eps 0.05 while the partner is on the target and "
+            "the agent is not; Manhattan distance to the target",
+            "interventions": "success with the channel replaced minus success with the "
+            "real channel, same episodes; constant_mean is the run's own mean on the map",
+        },
+        "recipe": cfg.hyperparameters(),
+        "departures_from_the_assignment": map_pool_study.DEPARTURES
+        | {"memory": "a GRU between the hidden layer and the heads; the previous action as input"},
+        "held_out": {
+            "modes": modes,
+            "differences": differences,
+            "memory_minus_no_memory": memory_gain,
+            "beacon_explorer_homing_share_greedy": shares(beacon),
+        },
+        "runs": {
+            f"{r['mode']}_seed{r['seed']}": {k: v for k, v in r.items() if k != "seconds"}
+            for r in runs
+        },
+    }
+
+
+def plot(path: Path, results: dict, no_memory: dict | None) -> None:
+    """Held-out success at ε = 0.05 per mode, without memory (the map-pool study) and with
+    (bars: mean over seeds, whiskers: 95 % CI, dots: seeds), beside the explorers."""
+    fig = Figure(figsize=(6.4, 3.4), layout="constrained")
+    ax = fig.subplots()
+    modes = list(results["held_out"]["modes"])
+    earlier = no_memory["held_out"]["modes"] if no_memory else {}
+    arms = (
+        ("no memory", -0.18, "#9aa9c2", earlier),
+        ("GRU memory", 0.18, "#4c72b0", results["held_out"]["modes"]),
+    )
+    for label, offset, colour, source in arms:
+        for i, mode in enumerate(modes):
+            if mode not in source:
+                continue
+            stats = source[mode]["eps"]
+            low, high = stats["ci95"]
+            ax.bar(i + offset, stats["mean"], 0.34, color=colour, label=label if i == 0 else None)
+            ax.errorbar(
+                i + offset,
+                stats["mean"],
+                [[stats["mean"] - low], [high - stats["mean"]]],
+                color="black",
+                capsize=3,
+            )
+            ax.plot([i + offset] * len(stats["per_seed"]), stats["per_seed"], "k.", ms=3)
+    if no_memory:
+        heuristics = no_memory["held_out"]["heuristics"]
+        for name, style in (("explorer", ":"), ("sweep_explorer", "--"), ("beacon_explorer", "-.")):
+            ax.axhline(
+                heuristics[name]["mean"], color="grey", ls=style, label=name.replace("_", " ")
+            )
+    ax.set_xticks(range(len(modes)), modes)
+    ax.set_ylabel("success on 40 held-out maps (ε = 0.05)")
+    ax.set_ylim(0, 1)
+    ax.grid(True, axis="y", alpha=0.3)
+    ax.legend(fontsize=7, ncols=2, loc="upper left")
+    with temporary_path_for(path) as temporary:
+        fig.savefig(temporary, format="png", dpi=150)
+
+
+def read_no_memory() -> dict | None:
+    return json.loads(NO_MEMORY.read_text(encoding="utf-8")) if NO_MEMORY.is_file() else None
+
+
+def run_study(
+    cfg: TrainConfig, modes: list[str], seeds: list[int], episodes: int, output_dir: Path
+) -> dict:
+    """Train and test every (mode, seed) in ``cfg.workers`` processes; install the outputs
+    in ``output_dir`` whole (or not at all)."""
+    output_dir = Path(output_dir).resolve()
+    output_dir.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(output_dir.parent)
+    staging = output_dir.parent / f".{output_dir.name}.staging.{os.getpid()}"
+    shutil.rmtree(staging, ignore_errors=True)
+    try:
+        (staging / "agent_models").mkdir(parents=True)
+        (staging / "training_logs").mkdir()
+        jobs = [(cfg, mode, seed, staging, episodes) for mode in modes for seed in seeds]
+        runs = run_jobs(train_and_test, jobs, cfg.workers, ProgressLine(len(jobs), cfg.total_steps))
+        no_memory = read_no_memory()
+        results = summarise(cfg, runs, beacon_homing(episodes, cfg.max_steps), no_memory)
+        write_json_atomic(staging / "memory.json", results)
+        plot(staging / "memory.png", results, no_memory)
+        timing = {
+            f"{r['mode']}_seed{r['seed']}": {k: round(v, 1) for k, v in r["seconds"].items()}
+            for r in runs
+        }
+        write_json_atomic(staging / "timing.json", timing)
+        replaced = output_dir.parent / f".{output_dir.name}.replaced.{os.getpid()}"
+        if output_dir.exists():
+            os.replace(output_dir, replaced)
+        os.replace(staging, output_dir)
+        shutil.rmtree(replaced, ignore_errors=True)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return results
+
+
+def format_table(results: dict) -> str:
+    lines = [f"{'held-out success':<14} {'greedy (95% CI)':>22} {'eps 0.05 (95% CI)':>22}"]
+    for mode, entry in results["held_out"]["modes"].items():
+        cells = [
+            f"{s['mean']:.3f} [{s['ci95'][0]:.3f}, {s['ci95'][1]:.3f}]"
+            for s in (entry["greedy"], entry["eps"])
+        ]
+        lines.append(f"{mode:<14} {cells[0]:>22} {cells[1]:>22}")
+    for name, entry in results["held_out"]["differences"].items():
+        s = entry["eps"]
+        lines.append(f"{name:<22} eps {s['mean']:+.3f} [{s['ci95'][0]:+.3f}, {s['ci95'][1]:+.3f}]")
+    return "\n".join(lines)
+
+
+def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]:
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
+    )
+    add = parser.add_argument
+    add(
+        "--total_steps",
+        "--total-steps",
+        type=int,
+        default=RECIPE["total_steps"],
+        help="environment steps per run",
+    )
+    add(
+        "--num_seeds",
+        "--num-seeds",
+        type=int,
+        default=len(RECIPE["seeds"]),
+        help="training seeds per mode (seeds 0, 1, ...)",
+    )
+    add(
+        "--mode", default="all", help="all, or a comma-separated list of " + ", ".join(MEMORY_MODES)
+    )
+    add(
+        "--episodes_per_map",
+        "--episodes-per-map",
+        type=int,
+        default=500,
+        help="test episodes per held-out map and condition (1..100000)",
+    )
+    add("--workers", type=int, default=available_cores(), help="parallel training processes")
+    add(
+        "--output_dir",
+        "--output-dir",
+        type=Path,
+        default=STUDY_DIR,
+        help="folder written (relative: to the current folder)",
+    )
+    args = parser.parse_args(argv)
+    modes = list(MEMORY_MODES) if args.mode == "all" else args.mode.split(",")
+    unknown = [m for m in modes if m not in MEMORY_MODES]
+    if unknown:
+        parser.error(
+            f"--mode: unknown {', '.join(unknown)}; use all or some of {', '.join(MEMORY_MODES)}"
+        )
+    settings = RECIPE | {"total_steps": args.total_steps, "seeds": [], "workers": args.workers}
+    try:
+        check_value("episodes_per_map", args.episodes_per_map, int_in(1, 100_000))
+        TrainConfig.check_field("num_seeds", args.num_seeds)
+        TrainConfig.check_field("output_dir", str(args.output_dir))
+        cfg = TrainConfig(**settings).validate()
+    except SettingError as error:
+        parser.error(error.usage())
+    args.modes, args.seeds = modes, list(range(args.num_seeds))
+    return cfg, args
+
+
+def main(argv: list[str] | None = None) -> dict:
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="replace")
+    cfg, args = parse_args(argv)
+    start = time.perf_counter()
+    results = run_study(cfg, args.modes, args.seeds, args.episodes_per_map, args.output_dir)
+    print(format_table(results))
+    print(f"wrote {args.output_dir} ({time.perf_counter() - start:.0f} s)")
+    return results
+
+
+if __name__ == "__main__":
+    main()
