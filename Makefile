@@ -8,7 +8,7 @@ RUNTIME_STAMP := $(VENV)/.runtime-installed
 DEV_STAMP     := $(VENV)/.dev-installed
 REPORT_STAMP  := $(VENV)/.report-installed
 
-.PHONY: all problem1 problem2 studies p2-baselines p2-main p2-studies p2-stability p2-memory p2-evaluate report \
+.PHONY: all problem1 problem2 studies p2-baselines p2-main p2-studies p2-stability p2-memory p2-memory-levers p2-evaluate report \
 	test lint \
 	bench clean
 
@@ -76,6 +76,10 @@ p2-stability: $(RUNTIME_STAMP)
 ## (about 30 min; reads the map-pool study's results; not part of `make studies`).
 p2-memory: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.memory.study
+
+## Levers that might make a receiver listen (full mode, training seeds 100-101, validation maps).
+p2-memory-levers: $(RUNTIME_STAMP)
+	cd problem2 && $(PY) -m studies.memory.levers
 
 ## The written report, built from the result files (seconds). Your name on the cover:
 ##   make report NAME="Full Name" EMAIL="you@usc.edu"   (only values given on this command line)
