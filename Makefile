@@ -73,7 +73,7 @@ p2-stability: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.stability_study --train
 
 ## Agents with memory (GRU) on the map pool: 4 modes x 5 seeds, tested on the held-out maps
-## (about 30 min; reads the map-pool study's results; not part of `make studies`).
+## (39 min; reads the map-pool study's results; not part of `make studies`).
 p2-memory: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.memory.study
 

@@ -31,8 +31,6 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
-import os
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -44,7 +42,6 @@ from analysis.held_out import baselines_on_held_out, held_out_success
 from analysis.stats import BOOTSTRAP_RESAMPLES, seed_statistics
 from batch_io import (
     ProgressLine,
-    remove_stale_temporaries,
     run_jobs,
     temporary_path_for,
     write_json_atomic,
@@ -55,6 +52,8 @@ from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED
 from train_config import MODES, SettingError, TrainConfig, available_cores, check_value, int_in
 from trainer import MultiAgentTrainer
+
+from studies.staging import staged_output, write_timing
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "map_pool"
 RECIPE: dict[str, Any] = dict(
@@ -206,14 +205,7 @@ def plot(path: Path, results: dict) -> None:
 def run_study(cfg: TrainConfig, episodes: int, output_dir: Path) -> dict:
     """Train and test every (mode, seed) of ``cfg`` in ``cfg.workers`` processes, test the
     heuristics, and install the outputs in ``output_dir`` whole (or not at all)."""
-    output_dir = Path(output_dir).resolve()
-    output_dir.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_temporaries(output_dir.parent)
-    staging = output_dir.parent / f".{output_dir.name}.staging.{os.getpid()}"
-    shutil.rmtree(staging, ignore_errors=True)
-    try:
-        (staging / "agent_models").mkdir(parents=True)
-        (staging / "training_logs").mkdir()
+    with staged_output(output_dir) as staging:
         jobs = [(mode, seed) for mode in cfg.run_modes() for seed in cfg.run_seeds()]
         progress = ProgressLine(len(jobs), cfg.total_steps)
         arguments = [(cfg, mode, seed, staging, episodes) for mode, seed in jobs]
@@ -223,16 +215,7 @@ def run_study(cfg: TrainConfig, episodes: int, output_dir: Path) -> dict:
         write_json_atomic(staging / "map_pool.json", results)
         write_csv(staging / "map_pool.csv", results)
         plot(staging / "map_pool.png", results)
-        timing = {f"{r['mode']}_seed{r['seed']}": {k: round(v, 1) for k, v in r["seconds"].items()}
-                  for r in runs}  # fmt: skip
-        write_json_atomic(staging / "timing.json", timing)
-        replaced = output_dir.parent / f".{output_dir.name}.replaced.{os.getpid()}"
-        if output_dir.exists():
-            os.replace(output_dir, replaced)
-        os.replace(staging, output_dir)
-        shutil.rmtree(replaced, ignore_errors=True)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+        write_timing(staging / "timing.json", runs)
     return results
 
 

@@ -23,10 +23,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import functools
 import json
-import os
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -34,27 +31,31 @@ from typing import Any
 
 import numpy as np
 import torch
-from analysis.baselines import POLICIES
-from analysis.interventions import intervene, intervention_table, real_steps
 from analysis.stats import seed_statistics
 from batch_io import (
     ProgressLine,
-    remove_stale_temporaries,
     run_jobs,
     temporary_path_for,
     write_json_atomic,
 )
-from grid_maps import HELD_OUT_MAP_SEEDS, held_out_maps
+from grid_maps import HELD_OUT_MAP_SEEDS
 from matplotlib.figure import Figure
-from models import DISTANCE_INDEX, MESSAGE_INDEX, load_policy
+from models import load_policy
 from multi_agent_env import MultiAgentEnv
-from rollout import EVAL_EPSILON, EVAL_SEED, EpisodeResults, run_episodes
+from rollout import EVAL_SEED
 from train_config import SettingError, TrainConfig, available_cores, check_value, int_in
-from vector_env import VectorMultiAgentEnv
 
 from studies import map_pool_study
-from studies.memory.agents import MEMORY_MODES, memory_policy
+from studies.memory.agents import MEMORY_MODES
+from studies.memory.held_out_tests import (
+    CHANNELS,
+    CONDITIONS,
+    beacon_homing,
+    held_out_results,
+    shares,
+)
 from studies.memory.learner import RecurrentTrainer
+from studies.staging import staged_output, write_timing
 
 RESULTS = Path(__file__).resolve().parents[2] / "results" / "studies"
 STUDY_DIR = RESULTS / "memory"
@@ -64,87 +65,12 @@ NO_MEMORY = RESULTS / "map_pool" / "map_pool.json"
 RECIPE: dict[str, Any] = map_pool_study.RECIPE | dict(
     total_steps=400_000, updates_per_step=1, batch_size=256
 )
-CONDITIONS = {"greedy": 0.0, "eps": EVAL_EPSILON}
-CHANNELS = {
-    "message": (MESSAGE_INDEX, ("comm", "full")),
-    "distance": (DISTANCE_INDEX, ("distance", "full")),
-}
-PROBES = ("same_step", "constant_mean", "constant_0", "constant_1")
 DIFFERENCES = (
     ("full", "independent"),
     ("full", "distance"),
     ("comm", "independent"),
     ("distance", "independent"),
 )
-
-
-def homing_counts(results: EpisodeResults, target: tuple[int, int]) -> np.ndarray:
-    """(closer, farther, neither) counts (2,) summed over agents of the moves made while the
-    partner stood on the target and the agent did not (Manhattan distance to the target)."""
-    positions = results.trajectories["positions"]  # (E, T + 1, 2, 2)
-    distance = np.abs(positions - np.asarray(target)).sum(-1)  # (E, T + 1, 2)
-    on = distance == 0
-    steps = real_steps(results)[..., None]  # (E, T, 1)
-    waiting = steps & on[:, :-1, ::-1] & ~on[:, :-1]  # partner on the target, agent not
-    change = distance[:, 1:] - distance[:, :-1]
-    return np.array(
-        [
-            (waiting & (change < 0)).sum(),
-            (waiting & (change > 0)).sum(),
-            (waiting & (change == 0)).sum(),
-        ]
-    )
-
-
-def message_on_off(results: EpisodeResults, target: tuple[int, int]) -> np.ndarray:
-    """(sum on the target, count on, sum off, count off) of the messages sent (4,)."""
-    positions = results.trajectories["positions"][:, :-1]
-    on = (np.abs(positions - np.asarray(target)).sum(-1) == 0) & real_steps(results)[..., None]
-    off = ~on & real_steps(results)[..., None]
-    sent = np.nan_to_num(results.trajectories["messages"])
-    return np.array([sent[on].sum(), on.sum(), sent[off].sum(), off.sum()], dtype=np.float64)
-
-
-def test_on_held_out(agents: tuple, mode: str, episodes: int, max_steps: int) -> dict[str, Any]:
-    """Success, interventions, message encoding and homing of one run on the held-out maps."""
-    success = {c: [] for c in CONDITIONS}
-    probes = {
-        f"{channel}.{kind}": {c: [] for c in CONDITIONS}
-        for channel, (_, modes) in CHANNELS.items()
-        if mode in modes
-        for kind in PROBES
-    }
-    homing, encoding = np.zeros(3), np.zeros(4)
-    for map_seed, grid in zip(HELD_OUT_MAP_SEEDS, held_out_maps(), strict=True):
-        env = VectorMultiAgentEnv(episodes, grid=grid, max_steps=max_steps)
-        for label, epsilon in CONDITIONS.items():
-            policy = functools.partial(memory_policy, agents, env, epsilon, EVAL_SEED + map_seed)
-
-            real = run_episodes(env, policy(), episodes, seed=EVAL_SEED, record=True)
-            success[label].append(float(real.successes.mean()))
-            if label == "eps":
-                homing += homing_counts(real, env.target_position)
-                encoding += message_on_off(real, env.target_position)
-            for name in probes:
-                channel, kind = name.split(".")
-                index = CHANNELS[channel][0]
-                mean = float(
-                    real.trajectories["observations"][:, :-1, :, index][real_steps(real)].mean()
-                )
-                table = intervention_table(kind, real, index, constant=mean, seed=map_seed)
-                probed = run_episodes(
-                    env, intervene(policy(), env, table, index), episodes, seed=EVAL_SEED
-                )
-                probes[name][label].append(float(probed.successes.mean()) - success[label][-1])
-    return {
-        "success": {c: float(np.mean(v)) for c, v in success.items()},
-        "success_per_map": success,
-        "interventions": {
-            n: {c: float(np.mean(v)) for c, v in p.items()} for n, p in probes.items()
-        },
-        "homing_counts_eps": homing.tolist(),
-        "message_on_off_eps": encoding.tolist(),
-    }
 
 
 def train_and_test(
@@ -165,7 +91,7 @@ def train_and_test(
     trainer.train(report)
     trained = time.perf_counter() - start
     agents = tuple(load_policy(trainer.models_dir / f"{trainer.name}_agent_{a}.pt") for a in "AB")
-    tested = test_on_held_out(agents, mode, episodes, cfg.max_steps)
+    tested = held_out_results(agents, mode, episodes, cfg.max_steps)
     return {
         "mode": mode,
         "seed": seed,
@@ -174,23 +100,6 @@ def train_and_test(
         **tested,
         "seconds": {"training": trained, "total": time.perf_counter() - start},
     }
-
-
-def beacon_homing(episodes: int, max_steps: int) -> list[float]:
-    """The beacon explorer's homing counts (closer, farther, neither) on the held-out maps."""
-    counts = np.zeros(3)
-    for map_seed, grid in zip(HELD_OUT_MAP_SEEDS, held_out_maps(), strict=True):
-        env = VectorMultiAgentEnv(episodes, grid=grid, max_steps=max_steps)
-        policy = POLICIES["beacon_explorer"](grid, EVAL_SEED + map_seed)
-        counts += homing_counts(
-            run_episodes(env, policy, episodes, seed=EVAL_SEED, record=True), env.target_position
-        )
-    return counts.tolist()
-
-
-def shares(counts: list[float]) -> dict[str, float]:
-    total = max(sum(counts), 1.0)
-    return dict(zip(("closer", "farther", "neither"), (c / total for c in counts), strict=True))
 
 
 def summarise(
@@ -333,32 +242,14 @@ def run_study(
 ) -> dict:
     """Train and test every (mode, seed) in ``cfg.workers`` processes; install the outputs
     in ``output_dir`` whole (or not at all)."""
-    output_dir = Path(output_dir).resolve()
-    output_dir.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_temporaries(output_dir.parent)
-    staging = output_dir.parent / f".{output_dir.name}.staging.{os.getpid()}"
-    shutil.rmtree(staging, ignore_errors=True)
-    try:
-        (staging / "agent_models").mkdir(parents=True)
-        (staging / "training_logs").mkdir()
+    with staged_output(output_dir) as staging:
         jobs = [(cfg, mode, seed, staging, episodes) for mode in modes for seed in seeds]
         runs = run_jobs(train_and_test, jobs, cfg.workers, ProgressLine(len(jobs), cfg.total_steps))
         no_memory = read_no_memory()
         results = summarise(cfg, runs, beacon_homing(episodes, cfg.max_steps), no_memory)
         write_json_atomic(staging / "memory.json", results)
         plot(staging / "memory.png", results, no_memory)
-        timing = {
-            f"{r['mode']}_seed{r['seed']}": {k: round(v, 1) for k, v in r["seconds"].items()}
-            for r in runs
-        }
-        write_json_atomic(staging / "timing.json", timing)
-        replaced = output_dir.parent / f".{output_dir.name}.replaced.{os.getpid()}"
-        if output_dir.exists():
-            os.replace(output_dir, replaced)
-        os.replace(staging, output_dir)
-        shutil.rmtree(replaced, ignore_errors=True)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+        write_timing(staging / "timing.json", runs)
     return results
 
 

@@ -1,0 +1,112 @@
+"""The memory study's tests on the 40 held-out maps, run on exported memory agents: success,
+the channel interventions, what the message says on and off the target, and the homing share
+(while the partner stands on the target, does a move bring the agent closer?), with the
+beacon explorer's homing share for comparison."""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import numpy as np
+from analysis.baselines import POLICIES
+from analysis.interventions import intervene, intervention_table, real_steps
+from grid_maps import HELD_OUT_MAP_SEEDS, held_out_maps
+from models import DISTANCE_INDEX, MESSAGE_INDEX
+from rollout import EVAL_EPSILON, EVAL_SEED, EpisodeResults, run_episodes
+from vector_env import VectorMultiAgentEnv
+
+from studies.memory.agents import memory_policy
+
+CONDITIONS = {"greedy": 0.0, "eps": EVAL_EPSILON}
+CHANNELS = {
+    "message": (MESSAGE_INDEX, ("comm", "full")),
+    "distance": (DISTANCE_INDEX, ("distance", "full")),
+}
+PROBES = ("same_step", "constant_mean", "constant_0", "constant_1")
+
+
+def homing_counts(results: EpisodeResults, target: tuple[int, int]) -> np.ndarray:
+    """(closer, farther, neither) counts (2,) summed over agents of the moves made while the
+    partner stood on the target and the agent did not (Manhattan distance to the target)."""
+    positions = results.trajectories["positions"]  # (E, T + 1, 2, 2)
+    distance = np.abs(positions - np.asarray(target)).sum(-1)  # (E, T + 1, 2)
+    on = distance == 0
+    steps = real_steps(results)[..., None]  # (E, T, 1)
+    waiting = steps & on[:, :-1, ::-1] & ~on[:, :-1]  # partner on the target, agent not
+    change = distance[:, 1:] - distance[:, :-1]
+    return np.array(
+        [
+            (waiting & (change < 0)).sum(),
+            (waiting & (change > 0)).sum(),
+            (waiting & (change == 0)).sum(),
+        ]
+    )
+
+
+def message_on_off(results: EpisodeResults, target: tuple[int, int]) -> np.ndarray:
+    """(sum on the target, count on, sum off, count off) of the messages sent (4,)."""
+    positions = results.trajectories["positions"][:, :-1]
+    on = (np.abs(positions - np.asarray(target)).sum(-1) == 0) & real_steps(results)[..., None]
+    off = ~on & real_steps(results)[..., None]
+    sent = np.nan_to_num(results.trajectories["messages"])
+    return np.array([sent[on].sum(), on.sum(), sent[off].sum(), off.sum()], dtype=np.float64)
+
+
+def held_out_results(agents: tuple, mode: str, episodes: int, max_steps: int) -> dict[str, Any]:
+    """Success, interventions, message encoding and homing of one run on the held-out maps."""
+    success = {c: [] for c in CONDITIONS}
+    probes = {
+        f"{channel}.{kind}": {c: [] for c in CONDITIONS}
+        for channel, (_, modes) in CHANNELS.items()
+        if mode in modes
+        for kind in PROBES
+    }
+    homing, encoding = np.zeros(3), np.zeros(4)
+    for map_seed, grid in zip(HELD_OUT_MAP_SEEDS, held_out_maps(), strict=True):
+        env = VectorMultiAgentEnv(episodes, grid=grid, max_steps=max_steps)
+        for label, epsilon in CONDITIONS.items():
+            policy = functools.partial(memory_policy, agents, env, epsilon, EVAL_SEED + map_seed)
+
+            real = run_episodes(env, policy(), episodes, seed=EVAL_SEED, record=True)
+            success[label].append(float(real.successes.mean()))
+            if label == "eps":
+                homing += homing_counts(real, env.target_position)
+                encoding += message_on_off(real, env.target_position)
+            for name in probes:
+                channel, kind = name.split(".")
+                index = CHANNELS[channel][0]
+                mean = float(
+                    real.trajectories["observations"][:, :-1, :, index][real_steps(real)].mean()
+                )
+                table = intervention_table(kind, real, index, constant=mean, seed=map_seed)
+                probed = run_episodes(
+                    env, intervene(policy(), env, table, index), episodes, seed=EVAL_SEED
+                )
+                probes[name][label].append(float(probed.successes.mean()) - success[label][-1])
+    return {
+        "success": {c: float(np.mean(v)) for c, v in success.items()},
+        "success_per_map": success,
+        "interventions": {
+            n: {c: float(np.mean(v)) for c, v in p.items()} for n, p in probes.items()
+        },
+        "homing_counts_eps": homing.tolist(),
+        "message_on_off_eps": encoding.tolist(),
+    }
+
+
+def beacon_homing(episodes: int, max_steps: int) -> list[float]:
+    """The beacon explorer's homing counts (closer, farther, neither) on the held-out maps."""
+    counts = np.zeros(3)
+    for map_seed, grid in zip(HELD_OUT_MAP_SEEDS, held_out_maps(), strict=True):
+        env = VectorMultiAgentEnv(episodes, grid=grid, max_steps=max_steps)
+        policy = POLICIES["beacon_explorer"](grid, EVAL_SEED + map_seed)
+        counts += homing_counts(
+            run_episodes(env, policy, episodes, seed=EVAL_SEED, record=True), env.target_position
+        )
+    return counts.tolist()
+
+
+def shares(counts: list[float]) -> dict[str, float]:
+    total = max(sum(counts), 1.0)
+    return dict(zip(("closer", "farther", "neither"), (c / total for c in counts), strict=True))

@@ -1,0 +1,45 @@
+"""A study's output folder written whole: everything goes into a staging folder beside it,
+which replaces the folder only when the block succeeds (an interrupted study leaves the
+previous results, never half of new ones)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from batch_io import remove_stale_temporaries, write_json_atomic
+
+
+@contextmanager
+def staged_output(output_dir: Path) -> Iterator[Path]:
+    """Yield an empty staging folder (with ``agent_models/`` and ``training_logs/``) beside
+    ``output_dir``; on success it replaces ``output_dir``, on error it is removed."""
+    output_dir = Path(output_dir).resolve()
+    output_dir.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(output_dir.parent)
+    staging = output_dir.parent / f".{output_dir.name}.staging.{os.getpid()}"
+    shutil.rmtree(staging, ignore_errors=True)
+    try:
+        (staging / "agent_models").mkdir(parents=True)
+        (staging / "training_logs").mkdir()
+        yield staging
+        replaced = output_dir.parent / f".{output_dir.name}.replaced.{os.getpid()}"
+        if output_dir.exists():
+            os.replace(output_dir, replaced)
+        os.replace(staging, output_dir)
+        shutil.rmtree(replaced, ignore_errors=True)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def write_timing(path: Path, runs: list[dict[str, Any]]) -> None:
+    """``timing.json``: each run's wall times (``seconds``), by ``<mode>_seed<seed>``."""
+    timing = {
+        f"{r['mode']}_seed{r['seed']}": {k: round(v, 1) for k, v in r["seconds"].items()}
+        for r in runs
+    }
+    write_json_atomic(path, timing)
