@@ -67,18 +67,16 @@ def held_out_results(agents: tuple, mode: str, episodes: int, max_steps: int) ->
         env = VectorMultiAgentEnv(episodes, grid=grid, max_steps=max_steps)
         for label, epsilon in CONDITIONS.items():
             policy = functools.partial(memory_policy, agents, env, epsilon, EVAL_SEED + map_seed)
-
             real = run_episodes(env, policy(), episodes, seed=EVAL_SEED, record=True)
             success[label].append(float(real.successes.mean()))
             if label == "eps":
                 homing += homing_counts(real, env.target_position)
                 encoding += message_on_off(real, env.target_position)
+            received = real.trajectories["observations"][:, :-1][real_steps(real)]  # (M, 2, D)
             for name in probes:
                 channel, kind = name.split(".")
                 index = CHANNELS[channel][0]
-                mean = float(
-                    real.trajectories["observations"][:, :-1, :, index][real_steps(real)].mean()
-                )
+                mean = float(np.ascontiguousarray(received[..., index]).mean())  # the run's mean
                 table = intervention_table(kind, real, index, constant=mean, seed=map_seed)
                 probed = run_episodes(
                     env, intervene(policy(), env, table, index), episodes, seed=EVAL_SEED

@@ -30,7 +30,7 @@ from trainer import MultiAgentTrainer
 
 from studies.memory.agents import NUM_ACTIONS, RecurrentQNetwork, export_recurrent, memory_policy
 
-EPISODES_PER_TRANSITIONS = 16  # a batch of batch_size transitions becomes batch_size // 16 episodes
+TRANSITIONS_PER_EPISODE = 16  # a batch of batch_size transitions: batch_size // 16 episodes
 
 
 @dataclass(frozen=True)
@@ -135,7 +135,7 @@ class RecurrentTrainer(MultiAgentTrainer):
         self.optimizer = torch.optim.Adam(self.online_parameters, lr=cfg.lr)
         capacity = max(1, cfg.buffer_size // env.max_steps)
         self.replay_buffer = EpisodeReplay(capacity, env.max_steps, self.obs_dim, self.seed)
-        self.batch_episodes = max(1, cfg.batch_size // EPISODES_PER_TRANSITIONS)
+        self.batch_episodes = max(1, cfg.batch_size // TRANSITIONS_PER_EPISODE)
         self.dial = cfg.comm_learning == "dial" and mode in ("comm", "full")
         self.epsilon = cfg.epsilon_start
         self.env_steps = self.episodes = self.updates = 0

@@ -54,14 +54,14 @@ from studies.memory.held_out_tests import (
     held_out_results,
     shares,
 )
-from studies.memory.learner import RecurrentTrainer
+from studies.memory.learner import TRANSITIONS_PER_EPISODE, RecurrentTrainer
 from studies.staging import staged_output, write_timing
 
 RESULTS = Path(__file__).resolve().parents[2] / "results" / "studies"
 STUDY_DIR = RESULTS / "memory"
 NO_MEMORY = RESULTS / "map_pool" / "map_pool.json"
 # One update of 16 stored episodes (batch_size // 16) per vector step of 64 copies; runs
-# of 400 k steps (a GRU update costs about ten feedforward ones).
+# of 400 k steps.
 RECIPE: dict[str, Any] = map_pool_study.RECIPE | dict(
     total_steps=400_000, updates_per_step=1, batch_size=256
 )
@@ -123,10 +123,8 @@ def summarise(
             }
             for name in mine[0]["interventions"]
         }
-        entry["homing_share_eps"] = shares(
-            np.sum([r["homing_counts_eps"] for r in mine], 0).tolist()
-        )
-        entry["homing_counts_eps"] = np.sum([r["homing_counts_eps"] for r in mine], 0).tolist()
+        homing = np.sum([r["homing_counts_eps"] for r in mine], 0).tolist()
+        entry["homing_share_eps"], entry["homing_counts_eps"] = shares(homing), homing
         if mode in CHANNELS["message"][1]:
             sums = np.sum([r["message_on_off_eps"] for r in mine], 0)
             entry["mean_message_eps"] = {
@@ -170,7 +168,7 @@ def summarise(
             "conditions": CONDITIONS,
             "start_cells_seed": EVAL_SEED,
             "policy_seed": f"{EVAL_SEED} + map seed",
-            "episodes_per_batch": cfg.batch_size // 16,
+            "episodes_per_batch": max(1, cfg.batch_size // TRANSITIONS_PER_EPISODE),
             "homing": "moves made at eps 0.05 while the partner is on the target and "
             "the agent is not; Manhattan distance to the target",
             "interventions": "success with the channel replaced minus success with the "
