@@ -6,8 +6,9 @@ Files: ``performance.json``, ``communication_analysis.json``, ``failure_analysis
 ``communication_measures.json`` / ``.csv`` / ``.png``, ``failure_decomposition.csv`` /
 ``.png`` (its numbers are in ``performance.json`` and ``failure_analysis.json``),
 ``mode_differences.csv`` (``performance.json``'s ``mode_differences``), ``held_out.csv``
-(``generalization.json``'s ``held_out``), ``comparison_table.md``, ``trajectories.png``,
-``comm_heatmap.png``, ``episode_<mode>.gif``.
+(``generalization.json``'s ``held_out``), ``comparison_table.md``, ``trajectories.png``
+(each mode's episodes shown and its messages per cell; the episodes' cells in
+``trajectories.json``), ``comm_heatmap.png``, ``episode_<mode>.gif``.
 JSON is written as UTF-8 without NaN or Infinity (a non-finite number is an error).
 """
 
@@ -24,6 +25,7 @@ from batch_io import temporary_path_for
 
 from analysis.messages import mean_message_per_cell
 from analysis.plots import (
+    EpisodeTrace,
     plot_failure_decomposition,
     plot_interventions,
     plot_measures,
@@ -196,6 +198,15 @@ def held_out_rows(generalization: dict) -> list[list]:
     return rows
 
 
+def trace_record(trace: EpisodeTrace) -> dict[str, Any]:
+    """An episode shown in ``trajectories.png``: its outcome and each agent's cells as
+    [row, col], from the start to the last step."""
+    return {
+        "success": trace.success, "length": trace.length, "description": trace.description,
+        "cells": {name: trace.positions[:, k].astype(int).tolist() for k, name in enumerate("AB")},
+    }  # fmt: skip
+
+
 def write_outputs(results: dict[str, Any], outcomes: dict, output_dir: Path) -> list[Path]:
     """Write every file of the module docstring to ``output_dir``; the figures show the
     main experiment (or the first one evaluated). Returns the paths written."""
@@ -235,17 +246,23 @@ def write_outputs(results: dict[str, Any], outcomes: dict, output_dir: Path) -> 
     name, outcome = next(iter(outcomes.items()))
     entry = performance["experiments"][name]
     grid, target = np.array(entry["grid"]), tuple(entry["target"])
-    rows, heat = [], []
+    rows, heat, routes = [], [], {}
     for mode, runs in outcome.runs.items():
         label = f"{mode} (seed {entry['modes'][mode]['best_seed']})"
         traces = representative_traces(runs, target)
         rows.append((label, traces))
         heat.append((label, mean_message_per_cell(runs["greedy"], grid.shape)))
+        routes[mode] = {"seed": entry["modes"][mode]["best_seed"],
+                        "episodes": [trace_record(t) for t in traces if t is not None]}  # fmt: skip
         shown = traces[0] or traces[1]
         if shown is not None:
             title = f"{mode}: {'success' if shown.success else 'failure'}"
             written.append(save_episode_gif(shown, grid, output_dir / f"episode_{mode}.gif", title))
-    written.append(plot_trajectories(rows, grid, output_dir / "trajectories.png"))
+    written.append(
+        plot_trajectories(rows, grid, output_dir / "trajectories.png", [h for _, h in heat])
+    )
+    episodes_shown = {"target": list(target), "modes": routes}
+    written.append(write_json(output_dir / "trajectories.json", episodes_shown))
     written.append(plot_message_heatmap(heat, grid, output_dir / "comm_heatmap.png"))
     main_measures = {m: v["aggregate"] for m, v in measures["experiments"][name].items()}
     written.append(plot_measures(main_measures, "K2", output_dir / "communication_measures.png"))

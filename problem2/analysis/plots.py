@@ -27,6 +27,7 @@ AGENT_OFFSETS = (-0.12, 0.12)  # so that the two paths stay apart where they ove
 WIDTHS = {  # inches; report/*.typ places each figure at exactly this width, i.e. at 1:1
     "trajectories": 4.2,
     "message_heatmap": 6.5,
+    "strategies": 6.5,
     "interventions": 5.2,
     "measures": 4.3,
     "failure_decomposition": 4.3,
@@ -130,58 +131,110 @@ def legible() -> Iterator[None]:
         yield
 
 
-def draw_map(ax: Axes, grid: np.ndarray) -> None:
+def draw_map(ax: Axes, grid: np.ndarray, star_size: float = 18) -> None:
     """Obstacles dark grey, the target a gold star, cell grid lines, labelled axes."""
     rows, cols = grid.shape
     ax.imshow(np.where(grid == OBSTACLE, 0.35, 1.0), cmap="gray", vmin=0, vmax=1)
     target_row, target_col = np.argwhere(grid == TARGET)[0]
-    ax.plot(target_col, target_row, marker="*", markersize=18, color="gold", mec="black")
+    ax.plot(target_col, target_row, marker="*", markersize=star_size, color="gold", mec="black")
     ax.vlines(np.arange(-0.5, cols), -0.5, rows - 0.5, color="0.8", linewidth=0.6)
     ax.hlines(np.arange(-0.5, rows), -0.5, cols - 0.5, color="0.8", linewidth=0.6)
     ax.set_xlabel("column")
     ax.set_ylabel("row")
 
 
-def draw_paths(ax: Axes, trace: EpisodeTrace) -> None:
+def draw_paths(ax: Axes, trace: EpisodeTrace, marker_scale: float = 1.0) -> None:
     """Both agents' paths: a line through the visited cells, a circle at the start and a
     square at the end."""
     for agent in range(2):
         path = trace.positions[:, agent] + AGENT_OFFSETS[agent]
         colour, name = AGENT_COLOURS[agent], "AB"[agent]
         ax.plot(path[:, 1], path[:, 0], color=colour, linewidth=1.6, alpha=0.8)
-        ax.plot(*path[0, ::-1], "o", color=colour, markersize=9, label=f"{name} start")
-        ax.plot(*path[-1, ::-1], "s", color=colour, markersize=7, mfc="none", label=f"{name} end")
+        start, end = path[0, ::-1], path[-1, ::-1]
+        ax.plot(*start, "o", color=colour, markersize=9 * marker_scale, label=f"{name} start")
+        ax.plot(*end, "s", color=colour, ms=7 * marker_scale, mfc="none", label=f"{name} end")
 
 
 def plot_trajectories(
-    rows: list[tuple[str, list[EpisodeTrace | None]]], grid: np.ndarray, path: str | Path
+    rows: list[tuple[str, list[EpisodeTrace | None]]],
+    grid: np.ndarray,
+    path: str | Path,
+    messages: list[np.ndarray] | None = None,
 ) -> Path:
     """One row per mode (label, [successful episode, failed or longest successful episode]);
-    None draws an empty panel saying that no such episode occurred."""
+    None draws an empty panel saying that no such episode occurred. With ``messages`` (one
+    mean message per cell (2, H, W) per row), two more columns show what each agent says
+    where: the strategy's route and its message in one figure."""
+    columns = 2 if messages is None else 4
+    width = WIDTHS["trajectories"] if messages is None else WIDTHS["strategies"]
+    height = (2.45 if messages is None else 1.75) * len(rows) + 0.9
     with legible():
-        fig = Figure(figsize=(WIDTHS["trajectories"], 2.45 * len(rows) + 0.9), layout="constrained")
-        _draw_trajectories(fig, rows, grid)
-        return save_figure(fig, path)
+        fig = Figure(figsize=(width, height), layout="constrained")
+        axes = np.atleast_2d(fig.subplots(len(rows), columns))
+        _draw_trajectories(fig, axes[:, :2], rows, grid, compact=messages is not None)
+        if messages is not None:
+            image = None
+            for means, row_axes in zip(messages, axes[:, 2:], strict=True):
+                for agent, ax in enumerate(row_axes):
+                    image = draw_message_map(ax, grid, means[agent])
+                    ax.set_title(f"message sent by {'AB'[agent]}", fontsize=MIN_FONT)
+            label = "mean message sent (greedy episodes)"
+            fig.colorbar(image, ax=axes[:, 2:], shrink=0.6, label=label)
+            for ax in axes[:, 1:].flat:
+                ax.set_ylabel("")
+                ax.set_yticklabels([])
+            for ax in axes[:-1].flat:
+                ax.set_xlabel("")
+                ax.set_xticklabels([])
+        return save_figure(fig, path, dpi=200 if messages is not None else 120)
 
 
 def _draw_trajectories(
-    fig: Figure, rows: list[tuple[str, list[EpisodeTrace | None]]], grid: np.ndarray
+    fig: Figure,
+    axes: np.ndarray,
+    rows: list[tuple[str, list[EpisodeTrace | None]]],
+    grid: np.ndarray,
+    compact: bool = False,
 ) -> None:
-    axes = np.atleast_2d(fig.subplots(len(rows), 2))
     for (label, traces), row_axes in zip(rows, axes, strict=True):
         for ax, trace, kind in zip(row_axes, traces, ("successful", "other"), strict=True):
-            draw_map(ax, grid)
+            draw_map(ax, grid, star_size=11 if compact else 18)
             ax.set_xticks(range(0, grid.shape[1], 2))
+            ax.set_yticks(range(0, grid.shape[0], 2))
+            head = "" if compact else f"{label}:\n"
             if trace is None:
-                ax.set_title(f"{label}:\nno {kind} episode", fontsize=MIN_FONT)
+                ax.set_title(f"{head}no {kind} episode", fontsize=MIN_FONT)
                 continue
-            draw_paths(ax, trace)
+            draw_paths(ax, trace, marker_scale=0.7 if compact else 1.0)
             steps = f"{trace.length} step{'s' if trace.length != 1 else ''}"
             outcome = f"success in {steps}" if trace.success else "failure"
-            detail = f" ({trace.description})" if trace.description else ""
-            ax.set_title(f"{label}:\n{outcome}{detail}", fontsize=MIN_FONT)
-    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=2)
-    fig.suptitle("Representative episodes\n(A blue, B red; star: target; grey: obstacles)")
+            if compact:
+                ax.set_title(f"{outcome}\n{trace.description}", fontsize=MIN_FONT)
+            else:
+                detail = f" ({trace.description})" if trace.description else ""
+                ax.set_title(f"{head}{outcome}{detail}", fontsize=MIN_FONT)
+        if compact:
+            row_axes[0].set_ylabel(f"{label}\nrow")
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=4)
+    if compact:
+        fig.suptitle("Representative episodes and the messages sent from each cell (best seed)")
+    else:
+        fig.suptitle("Representative episodes\n(A blue, B red; star: target; grey: obstacles)")
+
+
+def draw_message_map(ax: Axes, grid: np.ndarray, means: np.ndarray):
+    """The mean message an agent sent from each cell (H, W): viridis from 0 to 1, cells it
+    never sent from light grey, obstacles dark grey, the target a white star."""
+    values = np.ma.masked_invalid(np.where(grid == OBSTACLE, np.nan, means))
+    image = ax.imshow(values, cmap=_viridis_with_grey(), vmin=0, vmax=1)
+    ax.imshow(np.ma.masked_where(grid != OBSTACLE, grid), cmap="gray", vmin=0, vmax=2)
+    target_row, target_col = np.argwhere(grid == TARGET)[0]
+    ax.plot(target_col, target_row, marker="*", markersize=11, mfc="none", mec="white")
+    ax.set_xticks(range(0, grid.shape[1], 2))
+    ax.set_yticks(range(0, grid.shape[0], 2))
+    ax.set_xlabel("column")
+    ax.set_ylabel("row")
+    return image
 
 
 def plot_message_heatmap(
@@ -195,18 +248,10 @@ def plot_message_heatmap(
         )
         axes = np.atleast_2d(fig.subplots(len(panels), 2))
         image = None
-        target_row, target_col = np.argwhere(grid == TARGET)[0]
         for (label, means), row_axes in zip(panels, axes, strict=True):
             for agent, ax in enumerate(row_axes):
-                values = np.ma.masked_invalid(np.where(grid == OBSTACLE, np.nan, means[agent]))
-                image = ax.imshow(values, cmap=_viridis_with_grey(), vmin=0, vmax=1)
-                ax.imshow(np.ma.masked_where(grid != OBSTACLE, grid), cmap="gray", vmin=0, vmax=2)
-                ax.plot(target_col, target_row, marker="*", markersize=14, mfc="none", mec="white")
+                image = draw_message_map(ax, grid, means[agent])
                 ax.set_title(f"{label}: sent by {'AB'[agent]}")
-                ax.set_xticks(range(0, grid.shape[1], 2))
-                ax.set_yticks(range(0, grid.shape[0], 2))
-                ax.set_xlabel("column")
-                ax.set_ylabel("row")
         if image is not None:
             fig.colorbar(image, ax=axes, shrink=0.8, label="mean message sent (0 to 1)")
         fig.suptitle("Mean message sent from each cell (greedy test episodes, best seed)")

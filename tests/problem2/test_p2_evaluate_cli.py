@@ -61,6 +61,7 @@ OUTPUTS = [
     "failure_analysis.json",
     "generalization.json",
     "trajectories.png",
+    "trajectories.json",
     "comm_heatmap.png",
     "episode_independent.gif",
     "episode_comm.gif",
@@ -108,6 +109,24 @@ def test_evaluate_writes_every_output(evaluated: tuple[dict, Path]) -> None:
         assert rate["n"] == 2 and rate["ci95"][0] <= rate["mean"] <= rate["ci95"][1]
         assert set(full[condition]["failures"]) == {"swapping", "parked", "looping", "other"}
     assert results["performance"] == performance
+
+
+def test_the_episodes_shown_are_written_cell_by_cell(evaluated: tuple[dict, Path]) -> None:
+    """trajectories.json holds the cells of the episodes trajectories.png draws: legal moves
+    (one cell or none per step), and a success ends with both agents on the target."""
+    _, output = evaluated
+    shown = json.loads((output / "trajectories.json").read_text("utf-8"))
+    performance = json.loads((output / "performance.json").read_text("utf-8"))
+    assert set(shown["modes"]) == {"independent", "comm", "full"}
+    for mode, entry in shown["modes"].items():
+        assert entry["seed"] == performance["experiments"]["main"]["modes"][mode]["best_seed"]
+        assert entry["episodes"]
+        for episode in entry["episodes"]:
+            for cells in episode["cells"].values():
+                steps = np.abs(np.diff(np.array(cells), axis=0)).sum(axis=1)
+                assert len(cells) == episode["length"] + 1 and set(steps) <= {0, 1}
+            ends = [cells[-1] for cells in episode["cells"].values()]
+            assert (ends == [shown["target"]] * 2) == episode["success"]
 
 
 def test_the_last_weights_are_tested_beside_the_selected_ones(
