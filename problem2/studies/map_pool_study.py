@@ -69,6 +69,7 @@ RECIPE: dict[str, Any] = dict(
 STUDY_POOL_SIZES = int_in(1, MAX_POOL_SIZE)  # a pool of maps: train.py's 0 (one map) is not one
 CONDITIONS = {"greedy": 0.0, "eps": EVAL_EPSILON}
 HEURISTICS = ("explorer", "sweep_explorer", "beacon_explorer", "random", "oracle")
+MODE_DIFFERENCES = (("comm", "independent"), ("full", "comm"), ("full", "independent"))
 DEPARTURES = {
     "share_weights": "parameter sharing: both agents act with one set of weights (summed "
     "gradient) instead of two independent learners",
@@ -127,6 +128,17 @@ def summarise(cfg: TrainConfig, runs: list[dict], heuristics: dict, episodes: in
             label: seed_statistics([r["held_out_mean"][label] for r in mine])
             for label in CONDITIONS
         } | {"seeds": [r["seed"] for r in mine]}
+    success = {(r["mode"], r["seed"]): r["held_out_mean"] for r in runs}
+    differences = {}
+    for first, second in MODE_DIFFERENCES:
+        seeds = sorted(s for m, s in success if m == first and (second, s) in success)
+        if seeds:  # paired by training seed: the same seed and held-out maps in both modes
+            differences[f"{first}-{second}"] = {
+                label: seed_statistics(
+                    [success[first, s][label] - success[second, s][label] for s in seeds]
+                )
+                for label in CONDITIONS
+            } | {"seeds": seeds}
     return {
         "description": "agents trained on a pool of generated maps, tested on held-out maps",
         "protocol": {
@@ -149,9 +161,11 @@ def summarise(cfg: TrainConfig, runs: list[dict], heuristics: dict, episodes: in
         "departures_from_the_assignment": DEPARTURES,
         "held_out": {
             "modes": modes,
+            "differences": differences,
             "heuristics": heuristics,
             "note": "modes: ci95 and per_seed over training seeds (each the mean over the "
-            "held-out maps); heuristics: ci95 and per_seed over maps",
+            "held-out maps); differences: the first mode's success minus the second's, per "
+            "training seed, ci95 over seeds; heuristics: ci95 and per_seed over maps",
         },
         "runs": {
             f"{r['mode']}_seed{r['seed']}": {k: v for k, v in r.items() if k != "seconds"}

@@ -219,6 +219,10 @@ def test_tiny_study_end_to_end_and_reproducible(tmp_path: Path) -> None:
     for entry in held_out["modes"].values():
         assert entry["seeds"] == [0] and len(entry["eps"]["per_seed"]) == 1
     assert set(held_out["heuristics"]) == set(map_pool_study.HEURISTICS)
+    for name in ("comm-independent", "full-comm", "full-independent"):  # paired by seed
+        first, second = (held_out["modes"][m]["eps"]["mean"] for m in name.split("-"))
+        assert held_out["differences"][name]["eps"]["mean"] == pytest.approx(first - second)
+        assert held_out["differences"][name]["seeds"] == [0]
     heuristics = held_out["heuristics"]
     assert heuristics["oracle"]["mean"] > heuristics["random"]["mean"]
     run = saved["runs"]["full_seed0"]
