@@ -27,6 +27,7 @@ OPTIONAL_INPUTS = {
     "map-pool-study": "problem2/results/studies/map_pool/map_pool.json",
     "stability-study": "problem2/results/studies/stability/stability.json",
     "memory-study": "problem2/results/studies/memory/memory.json",
+    "memory-levers": "problem2/results/studies/memory_levers/levers.json",
 }
 
 
