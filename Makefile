@@ -68,7 +68,7 @@ p2-studies: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.map_pool_study
 	$(MAKE) p2-stability
 
-## Does learning hold its peak? Four settings x 3 modes x training seeds 100-103, last weights.
+## Does learning hold its peak? Five settings x 3 modes x training seeds 100-103, last weights.
 p2-stability: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.stability_study --train
 

@@ -269,8 +269,7 @@ def manifest(
         runs[name] = {
             "mode": final["mode"],
             "seed": final["seed"],
-            "models": files,
-            "sha256": {a: file_sha256(models_dir / f) for a, f in files.items()},
+            **model_listing(files, models_dir),
             "selection": {"select_by": cfg.select_by}
             | {
                 condition: {key: final[condition][key] for key in SELECTION_MEASURES}
@@ -279,13 +278,17 @@ def manifest(
         }
         last = {agent: f"{LAST_WEIGHTS}/{name}_agent_{agent}.pt" for agent in "AB"}
         if all((models_dir / f).is_file() for f in last.values()):  # trained with keep_best
-            runs[name]["last_weights"] = {
-                "models": last, "sha256": {a: file_sha256(models_dir / f) for a, f in last.items()}
-            }  # fmt: skip
+            runs[name]["last_weights"] = model_listing(last, models_dir)
     return {"format": 1, **batch_identity(cfg), "code_version": code_version()} | {
         "runs": runs,
         "best": best,
     }
+
+
+def model_listing(files: dict[str, str], models_dir: Path) -> dict[str, dict[str, str]]:
+    """The manifest's record of a model pair: its files (relative to ``models_dir``) and
+    their sha256."""
+    return {"models": files, "sha256": {a: file_sha256(models_dir / f) for a, f in files.items()}}
 
 
 def file_sha256(path: Path) -> str:
@@ -337,6 +340,7 @@ def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], tit
     every seed as a thin line (its last point is the weights the run ended with), the mean
     over seeds and the interquartile band."""
     from matplotlib.figure import Figure  # here: a worker process never needs matplotlib
+    from matplotlib.ticker import FuncFormatter
 
     fig = Figure(figsize=(4.0 * len(modes), 6.0), layout="constrained")
     axes = np.asarray(fig.subplots(2, len(modes), sharey="row", squeeze=False))
@@ -359,6 +363,8 @@ def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], tit
             ax.grid(True, alpha=0.3)
         axes[0, column].set_title(f"{mode} ({len(seeds)} seeds, thin: each seed)")
         axes[1, column].set_xlabel("environment steps")
+        for ax in axes[:, column]:  # "100k": full numbers would run into each other
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x / 1000:g}k" if x else "0"))
     axes[0, 0].legend(loc="lower right")
     fig.suptitle(title)
     path = logs_dir / "training_curves.png"

@@ -186,6 +186,9 @@ class TrainConfig:
     """potential-based shaping for learning only (Ng et al. 1999), >= 0: adds
     gamma * Phi(s') - Phi(s) with Phi = this value per agent on the target (an arrival pays
     about +Phi, a departure costs Phi; 0 = none)"""
+    potential_credit: str = "agent"
+    """whose arrivals the arrival term pays each agent for: agent (its own only, a potential
+    per agent; Devlin and Kudenko 2011) or team (both agents', one team value per step)"""
     total_steps: int = 300_000
     """environment steps per run, summed over the parallel environments (1 or more)"""
     num_episodes: int = 0
@@ -333,6 +336,7 @@ FIELD_CHECKS: dict[str, Check] = {
     "grid_size": grid_sides_in(3, MAX_GRID_SIDE),
     "max_steps": int_in(1),
     "reward_mode": one_of("goal", "per_step", "arrival"),
+    "potential_credit": one_of("agent", "team"),
     "target_potential": number_in(0.0, math.inf, high_open=True),
     "total_steps": int_in(1),
     "num_episodes": int_in(0),

@@ -252,10 +252,11 @@ class MultiAgentTrainer:
     def learning_rewards(
         self, rewards: np.ndarray, info: dict[str, np.ndarray], obs: np.ndarray
     ) -> np.ndarray:
-        """The team rewards (N,) plus the terms only learning sees: the potential-based
-        arrival term γ Φ(s') − Φ(s), Φ = ``target_potential`` per agent on the target (``obs``
-        (N, 2, D) before the step: an agent is on the target when its patch's centre is);
-        ``coverage_bonus`` per newly seen cell; ``on_target_bonus`` per agent on the target.
+        """The team rewards (N,) plus the terms only learning sees: with ``potential_credit``
+        team, the potential-based arrival term γ Φ(s') − Φ(s), Φ = ``target_potential`` per
+        agent on the target (``obs`` (N, 2, D) before the step); ``coverage_bonus`` per newly
+        seen cell; ``on_target_bonus`` per agent on the target. (With ``potential_credit``
+        agent, :meth:`td_loss` adds each agent's own arrival term.)
 
         The arrival term pays about +Φ for every arrival and charges Φ for every departure,
         so leaving and coming back earns nothing. (The ``arrival`` reward pays +2 only on an
@@ -263,9 +264,8 @@ class MultiAgentTrainer:
         target then values stepping off and back on as if it paid again.) Being
         potential-based, it leaves the optimal policy of the goal reward unchanged."""
         cfg = self.cfg
-        if cfg.target_potential > 0:
-            centre = self.env.obs_window**2 // 2
-            before = (obs[:, :, centre] == TARGET).sum(axis=1)
+        if cfg.target_potential > 0 and cfg.potential_credit == "team":
+            before = self.on_target(obs).sum(axis=1)
             after = info["on_target"].sum(axis=1)
             rewards = rewards + cfg.target_potential * (cfg.gamma * after - before)
         if cfg.on_target_bonus > 0:
@@ -273,6 +273,11 @@ class MultiAgentTrainer:
         if cfg.coverage_bonus > 0 and "newly_seen" in info:
             rewards = rewards + cfg.coverage_bonus * info["newly_seen"]
         return rewards
+
+    def on_target(self, obs):
+        """1 where an agent stands on the target: the centre of its patch (obs (..., D),
+        NumPy or torch) shows it."""
+        return obs[..., self.env.obs_window**2 // 2] == TARGET
 
     # ------------------------------------------------------------------ 3. store
     def store(
@@ -332,21 +337,28 @@ class MultiAgentTrainer:
         discounted reward of k <= n steps and d = γ^k, 0 where both reached the target
         (the only terminal: the time limit is a cut-off and is bootstrapped through);
         with advantage learning y − α (max_b Q_target(s, b) − Q_target(s, a)), α from
-        :meth:`advantage_learning_alpha`.
+        :meth:`advantage_learning_alpha`. With ``potential_credit`` agent, each agent's R
+        also holds its own arrival term over the k steps, Φ (d · on(s') − on(s)): the sum of
+        γ^j (γ Φ(s_{j+1}) − Φ(s_j)) telescopes, and the terminal state's potential is 0.
         Returns (loss with gradient, TD errors δ (2, B), Q(s, a) (2, B)), the last two
         detached."""
         obs, next_obs = batch.obs * self.mask, batch.next_obs * self.mask
         if self.dial:
             obs, next_obs = self.splice_messages(batch, obs, next_obs)
+        alpha = self.advantage_learning_alpha()
         with torch.no_grad():
             best_next = self.online(next_obs)[0].max(dim=-1, keepdim=True).indices
-            next_value = self.target(next_obs)[0].gather(-1, best_next)[..., 0]
+            # One target-network pass over s' and, for advantage learning, s: (2, B or 2B, 5).
+            q_target = self.target(torch.cat([next_obs, obs], dim=1) if alpha > 0 else next_obs)[0]
+            next_value = q_target[:, : obs.shape[1]].gather(-1, best_next)[..., 0]
             target = batch.reward + batch.discount * next_value
-            alpha = self.advantage_learning_alpha()
+            if self.cfg.target_potential > 0 and self.cfg.potential_credit == "agent":
+                on_now, on_next = (self.on_target(o).float() for o in (batch.obs, batch.next_obs))
+                target = target + self.cfg.target_potential * (batch.discount * on_next - on_now)
             if alpha > 0:  # advantage learning: minus the action gap at s (target networks)
-                q_target = self.target(obs)[0]
-                taken = q_target.gather(-1, batch.actions.unsqueeze(-1))[..., 0]
-                target = target - alpha * (q_target.max(dim=-1).values - taken)
+                q_at_s = q_target[:, obs.shape[1] :]
+                taken = q_at_s.gather(-1, batch.actions.unsqueeze(-1))[..., 0]
+                target = target - alpha * (q_at_s.max(dim=-1).values - taken)
         q_taken = self.online(obs)[0].gather(-1, batch.actions.unsqueeze(-1))[..., 0]
         per_sample = F.smooth_l1_loss(q_taken, target, reduction="none")  # (2, B)
         loss = (per_sample * batch.weights).mean(dim=1).sum()

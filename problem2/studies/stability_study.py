@@ -1,6 +1,6 @@
-"""Does learning hold its peak? The training curves of four settings on training seeds.
+"""Does learning hold its peak? The training curves of five settings on training seeds.
 
-    python -m studies.stability_study --train      # train the four batches, then summarise
+    python -m studies.stability_study --train      # train the five batches, then summarise
     python -m studies.stability_study              # summarise the batches already trained
 
 Each setting is one ``train.py`` batch (3 modes x training seeds 100-103, the main
@@ -47,11 +47,16 @@ CANDIDATES = {
     },
     "potential_plain": {
         "flags": "--advantage_learning 0",
-        "words": "goal reward + potential-based arrival term, plain Double-DQN target",
+        "words": "goal reward + each agent's own arrival term, plain Double-DQN target",
+    },
+    "team_potential_al": {
+        "flags": "--potential_credit team",
+        "words": "goal reward + the team's arrival term (both agents' arrivals), advantage "
+        "learning",
     },
     "potential_al": {
         "flags": "",
-        "words": "goal reward + potential-based arrival term, advantage learning (the default)",
+        "words": "goal reward + each agent's own arrival term, advantage learning (the default)",
     },
 }
 COMMON_FLAGS = "--no-keep_best --final_eval_episodes 200 --overwrite"

@@ -54,14 +54,14 @@ def observations(on_target: list[bool]) -> np.ndarray:
 def test_arrival_term_is_gamma_phi_after_minus_phi_before(
     tmp_path: Path, before, after, expected
 ) -> None:
-    trainer = trained(tmp_path, target_potential=4.0)
+    trainer = trained(tmp_path, target_potential=4.0, potential_credit="team")
     info = {"on_target": np.array([after])}
     shaped = trainer.learning_rewards(np.array([-0.1]), info, observations(before))
     assert shaped[0] == pytest.approx(-0.1 + expected(trainer.cfg.gamma, 4.0))
 
 
 def test_leaving_the_target_and_coming_back_earns_nothing_but_the_wait(tmp_path: Path) -> None:
-    trainer = trained(tmp_path, target_potential=4.0)
+    trainer = trained(tmp_path, target_potential=4.0, potential_credit="team")
     gamma, path = trainer.cfg.gamma, [True, False, True]  # on, off, back on
     terms = [
         trainer.learning_rewards(
@@ -74,6 +74,29 @@ def test_leaving_the_target_and_coming_back_earns_nothing_but_the_wait(tmp_path:
     assert trainer.learning_rewards(
         np.array([0.0]), {"on_target": np.array([[True, False]])}, observations([False, False])
     )[0] == pytest.approx(gamma * 4.0)  # every arrival pays, not only the first
+
+
+def test_own_arrival_term_enters_each_agents_target_and_not_the_team_reward(
+    tmp_path: Path,
+) -> None:
+    """potential_credit agent: the stored reward is the goal reward alone, and each agent's
+    k-step target gains Φ (d · on(s') − on(s)) from its own observations only."""
+    trainer = trained(tmp_path, target_potential=4.0, potential_credit="agent")
+    info = {"on_target": np.array([[True, False]])}
+    assert trainer.learning_rewards(np.array([-0.1]), info, observations([False, False]))[0] == -0.1
+    batch = trainer.sample(64)
+    centre = trainer.env.obs_window**2 // 2
+    batch.obs[0, :10, centre] = TARGET  # A on the target in the first rows' s, B in some s'
+    batch.next_obs[1, 5:15, centre] = TARGET
+    on_now = trainer.on_target(batch.obs).float()
+    on_next = trainer.on_target(batch.next_obs).float()
+    assert on_now.shape == (2, 64) and not torch.equal(on_now[0], on_now[1])  # agents differ
+    _, delta_own, _ = trainer.td_loss(batch)
+    trainer.cfg.target_potential = 0.0
+    _, delta_plain, _ = trainer.td_loss(batch)
+    # δ = Q(s, a) − y: a target higher by the agent's own term is a δ lower by as much.
+    own_term = 4.0 * (batch.discount * on_next - on_now)
+    assert torch.allclose(delta_plain - delta_own, own_term, atol=1e-5)
 
 
 def test_without_a_potential_the_rewards_pass_unchanged(tmp_path: Path) -> None:
