@@ -94,7 +94,7 @@ def small_trainer(tmp_path: Path, mode: str, **settings: object) -> RecurrentTra
         **{"total_steps": 2_000, "num_envs": 8, "batch_size": 64, "learning_starts": 400,
            "eval_interval": 1_000, "eval_episodes": 8, "hidden_dim": 16, "n_step": 3,
            "gamma": 0.9, "map_pool": 20, "validation_maps": 4, "share_weights": True,
-           "output_dir": str(tmp_path), "seed": 5} | settings,
+           "potential_credit": "team", "output_dir": str(tmp_path), "seed": 5} | settings,
     ).validate()  # fmt: skip
     return RecurrentTrainer(MultiAgentEnv(max_steps=12), cfg, mode)
 

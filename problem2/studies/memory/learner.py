@@ -115,6 +115,8 @@ class RecurrentTrainer(MultiAgentTrainer):
     def __init__(
         self, env: MultiAgentEnv, cfg: TrainConfig, mode: str, levers: Levers = Levers()
     ) -> None:
+        if cfg.target_potential > 0 and cfg.potential_credit == "agent":  # not in this td_loss
+            raise ValueError("memory agents take the arrival term as potential_credit team")
         self.cfg, self.env, self.mode, self.seed = cfg, env, mode, cfg.seed
         self.levers = levers
         self.name = f"{mode}_seed{cfg.seed}"
