@@ -77,7 +77,8 @@ p2-stability: $(RUNTIME_STAMP)
 p2-memory: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.memory.study
 
-## Levers that might make a receiver listen (full mode, training seeds 100-101, validation maps).
+## Levers that might make a receiver listen (full mode, training seeds 100-101, validation maps;
+## about 30 min).
 p2-memory-levers: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.memory.levers
 
