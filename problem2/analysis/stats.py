@@ -74,6 +74,26 @@ def seed_statistics(
     }
 
 
+def seed_paired_differences(
+    success: dict[tuple[str, int], dict[str, float]],
+    pairs: Sequence[tuple[str, str]],
+    conditions: Sequence[str],
+) -> dict[str, dict]:
+    """For each (first, second) pair of modes, keyed ``"first-second"``: per condition the
+    :func:`seed_statistics` of first's success minus second's on each training seed both
+    have (``success`` keyed (mode, seed)), and those ``seeds``. Pairs without a common seed
+    are left out."""
+    differences = {}
+    for first, second in pairs:
+        seeds = sorted(s for m, s in success if m == first and (second, s) in success)
+        if seeds:
+            differences[f"{first}-{second}"] = {
+                c: seed_statistics([success[first, s][c] - success[second, s][c] for s in seeds])
+                for c in conditions
+            } | {"seeds": seeds}
+    return differences
+
+
 def paired_difference(
     first: np.ndarray, second: np.ndarray, n_resamples: int = 2_000, seed: int = BOOTSTRAP_SEED
 ) -> dict[str, float | list]:

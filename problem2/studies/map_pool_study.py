@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 import torch
 from analysis.held_out import baselines_on_held_out, held_out_success
-from analysis.stats import BOOTSTRAP_RESAMPLES, seed_statistics
+from analysis.stats import BOOTSTRAP_RESAMPLES, seed_paired_differences, seed_statistics
 from batch_io import (
     ProgressLine,
     run_jobs,
@@ -129,16 +129,7 @@ def summarise(cfg: TrainConfig, runs: list[dict], heuristics: dict, episodes: in
             for label in CONDITIONS
         } | {"seeds": [r["seed"] for r in mine]}
     success = {(r["mode"], r["seed"]): r["held_out_mean"] for r in runs}
-    differences = {}
-    for first, second in MODE_DIFFERENCES:
-        seeds = sorted(s for m, s in success if m == first and (second, s) in success)
-        if seeds:  # paired by training seed: the same seed and held-out maps in both modes
-            differences[f"{first}-{second}"] = {
-                label: seed_statistics(
-                    [success[first, s][label] - success[second, s][label] for s in seeds]
-                )
-                for label in CONDITIONS
-            } | {"seeds": seeds}
+    differences = seed_paired_differences(success, MODE_DIFFERENCES, CONDITIONS)
     return {
         "description": "agents trained on a pool of generated maps, tested on held-out maps",
         "protocol": {

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from analysis.stats import seed_statistics
+from analysis.stats import seed_paired_differences, seed_statistics
 from batch_io import (
     ProgressLine,
     run_jobs,
@@ -133,19 +133,8 @@ def summarise(
             }
         modes[mode] = entry
     seeds_of = {m: {r["seed"]: r for r in mine} for m, mine in by_mode.items()}
-    differences = {}
-    for first, second in DIFFERENCES:
-        if first in seeds_of and second in seeds_of:
-            common = sorted(set(seeds_of[first]) & set(seeds_of[second]))
-            differences[f"{first}-{second}"] = {
-                c: seed_statistics(
-                    [
-                        seeds_of[first][s]["success"][c] - seeds_of[second][s]["success"][c]
-                        for s in common
-                    ]
-                )
-                for c in CONDITIONS
-            } | {"seeds": common}
+    success = {(r["mode"], r["seed"]): r["success"] for r in runs}
+    differences = seed_paired_differences(success, DIFFERENCES, CONDITIONS)
     memory_gain = {}
     if no_memory is not None:
         for mode, runs_of_mode in seeds_of.items():
