@@ -15,17 +15,20 @@ from batch_io import remove_stale_temporaries, write_json_atomic
 
 
 @contextmanager
-def staged_output(output_dir: Path) -> Iterator[Path]:
-    """Yield an empty staging folder (with ``agent_models/`` and ``training_logs/``) beside
-    ``output_dir``; on success it replaces ``output_dir``, on error it is removed."""
+def staged_output(
+    output_dir: Path, subfolders: tuple[str, ...] = ("agent_models", "training_logs")
+) -> Iterator[Path]:
+    """Yield an empty staging folder (with ``subfolders``) beside ``output_dir``; on success
+    it replaces ``output_dir``, on error it is removed."""
     output_dir = Path(output_dir).resolve()
     output_dir.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_temporaries(output_dir.parent)
     staging = output_dir.parent / f".{output_dir.name}.staging.{os.getpid()}"
     shutil.rmtree(staging, ignore_errors=True)
     try:
-        (staging / "agent_models").mkdir(parents=True)
-        (staging / "training_logs").mkdir()
+        staging.mkdir(parents=True)
+        for name in subfolders:
+            (staging / name).mkdir()
         yield staging
         replaced = output_dir.parent / f".{output_dir.name}.replaced.{os.getpid()}"
         if output_dir.exists():

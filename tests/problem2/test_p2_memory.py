@@ -99,6 +99,11 @@ def small_trainer(tmp_path: Path, mode: str, **settings: object) -> RecurrentTra
     return RecurrentTrainer(MultiAgentEnv(max_steps=12), cfg, mode)
 
 
+def test_memory_agents_refuse_the_per_agent_arrival_term(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="potential_credit must be team for memory agents"):
+        small_trainer(tmp_path, "full", potential_credit="agent")
+
+
 def test_episodes_are_stored_whole_and_training_exports_the_pair(tmp_path: Path) -> None:
     trainer = small_trainer(tmp_path, "full")
     trainer.train()

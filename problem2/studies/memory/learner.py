@@ -116,7 +116,10 @@ class RecurrentTrainer(MultiAgentTrainer):
         self, env: MultiAgentEnv, cfg: TrainConfig, mode: str, levers: Levers = Levers()
     ) -> None:
         if cfg.target_potential > 0 and cfg.potential_credit == "agent":  # not in this td_loss
-            raise ValueError("memory agents take the arrival term as potential_credit team")
+            raise ValueError(
+                "potential_credit must be team for memory agents with target_potential > 0 "
+                "(their td_loss adds no per-agent arrival term), got agent"
+            )
         self.cfg, self.env, self.mode, self.seed = cfg, env, mode, cfg.seed
         self.levers = levers
         self.name = f"{mode}_seed{cfg.seed}"

@@ -31,6 +31,7 @@ from train_config import SettingError, TrainConfig, available_cores
 
 from studies.memory.learner import Levers, RecurrentTrainer
 from studies.memory.study import RECIPE, RESULTS
+from studies.staging import staged_output
 
 OUTPUT_DIR = RESULTS / "memory_levers"
 SETTINGS: dict[str, dict[str, Any]] = {
@@ -128,12 +129,12 @@ def main(argv: list[str] | None = None) -> dict:
         TrainConfig.check_field("workers", args.workers)
     except SettingError as error:
         parser.error(error.usage())
-    folder = Path(args.output_dir).resolve()
-    jobs = [(cfg, n, m, s, folder) for n in names for m in LEVER_MODES for s in TRAINING_SEEDS]
     steps = max(SETTINGS[n].get("total_steps", cfg.total_steps) for n in names)
-    runs = run_jobs(train_setting, jobs, args.workers, ProgressLine(len(jobs), steps))
-    results = summarise(runs)
-    write_json_atomic(folder / "levers.json", results)
+    with staged_output(args.output_dir, subfolders=()) as staging:  # installed whole
+        jobs = [(cfg, n, m, s, staging) for n in names for m in LEVER_MODES for s in TRAINING_SEEDS]
+        runs = run_jobs(train_setting, jobs, args.workers, ProgressLine(len(jobs), steps))
+        results = summarise(runs)
+        write_json_atomic(staging / "levers.json", results)
     for name, entry in results["settings"].items():
         for mode, stats in entry["modes"].items():
             print(
