@@ -186,6 +186,8 @@ class MultiAgentTrainer:
         self._evaluation_envs: dict[int, VectorMultiAgentEnv] = {}  # by number of copies
 
     # ------------------------------------------------------------------ 1-2. act and step
+    vector_env_class: type[VectorMultiAgentEnv] = VectorMultiAgentEnv  # a study may extend it
+
     def make_vector_env(
         self, n_envs: int, seed: int | None, validation: bool = False
     ) -> VectorMultiAgentEnv:
@@ -198,7 +200,7 @@ class MultiAgentTrainer:
             pool = validation_maps(cfg.validation_maps, size) if validation else None
             maps = dict(map_pool=training_maps(cfg.map_pool, size) if pool is None else pool)
             maps["track_coverage"] = not validation and cfg.coverage_bonus > 0
-        return VectorMultiAgentEnv(
+        return self.vector_env_class(
             n_envs, grid=None if maps else self.env.grid, obs_window=self.env.obs_window,
             max_steps=self.env.max_steps, seed=seed, reward_mode=cfg.reward_mode, **maps,
         )  # fmt: skip
@@ -274,7 +276,7 @@ class MultiAgentTrainer:
             rewards = rewards + cfg.coverage_bonus * info["newly_seen"]
         return rewards
 
-    def on_target(self, obs):
+    def on_target(self, obs: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
         """1 where an agent stands on the target: the centre of its patch (obs (..., D),
         NumPy or torch) shows it."""
         return obs[..., self.env.obs_window**2 // 2] == TARGET

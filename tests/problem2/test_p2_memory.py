@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from grid_maps import TARGET, training_maps
+from models import MESSAGE_INDEX
 from multi_agent_env import MultiAgentEnv
 from rollout import run_episodes
 from studies.memory.agents import (
@@ -18,7 +20,8 @@ from studies.memory.agents import (
     memory_policy,
     mode_mask,
 )
-from studies.memory.learner import Levers, RecurrentTrainer
+from studies.memory.held_out_tests import memory_cic, memory_states
+from studies.memory.learner import CURRICULUM_END, CurriculumEnv, Levers, RecurrentTrainer
 from train_config import TrainConfig
 from vector_env import VectorMultiAgentEnv
 
@@ -191,6 +194,47 @@ def test_same_seed_same_models(tmp_path: Path) -> None:
 def test_levers_are_checked() -> None:
     with pytest.raises(ValueError, match="listening must be a finite number >= 0"):
         Levers(listening=-1.0)
+    with pytest.raises(ValueError, match=r"curriculum must be a share in \[0, 1\]"):
+        Levers(curriculum=1.5)
+
+
+def test_curriculum_starts_that_share_of_episodes_with_one_agent_on_the_target() -> None:
+    env = CurriculumEnv(2000, map_pool=training_maps(30), seed=4, track_coverage=True)
+    env.reset()
+    env.start_on_target = 0.5
+    rng = np.random.default_rng(0)
+    for _ in range(env.max_steps):  # nearly every episode is cut off now and restarts
+        obs, *_ = env.step(rng.integers(0, 5, (2000, 2)), np.zeros((2000, 2)))
+    starts = env.steps == 0
+    assert starts.mean() > 0.9
+    on = (env.positions == env.target_positions[:, None]).all(axis=-1)[starts]  # (S, 2)
+    assert not on.all(axis=1).any()
+    assert 0.45 < on.any(axis=1).mean() < 0.58  # 0.5 drawn, plus starts that fell there
+    assert abs(on[:, 0].mean() - on[:, 1].mean()) < 0.04  # A or B at random
+    np.testing.assert_array_equal(obs[starts][..., 4] == TARGET, on)  # what each agent sees
+    np.testing.assert_array_equal(env._visited[starts], on)  # no arrival reward for that
+    env.start_on_target = 0.0  # the plain environment again: no draw, same episodes
+    plain = VectorMultiAgentEnv(50, map_pool=training_maps(30), seed=9)
+    same = CurriculumEnv(50, map_pool=training_maps(30), seed=9)
+    np.testing.assert_array_equal(plain.reset(), same.reset())
+
+
+def test_curriculum_share_falls_to_zero_at_its_end(tmp_path: Path) -> None:
+    plain = small_trainer(tmp_path, "full", total_steps=800)
+    assert type(plain.rollout.env) is VectorMultiAgentEnv  # without the lever
+    levers = Levers(curriculum=0.6)
+    taught = RecurrentTrainer(MultiAgentEnv(max_steps=12), plain.cfg, "full", levers)
+    assert isinstance(taught.rollout.env, CurriculumEnv)
+    shares = []
+    while not taught.budget_spent():
+        progress = taught.progress()  # the share is set from the progress before the step
+        taught.step(taught.rollout, 0.0)
+        shares.append((progress, taught.rollout.env.start_on_target))
+    assert shares[0] == (0.0, 0.6)
+    for progress, share in shares:
+        assert share == pytest.approx(0.6 * max(0.0, 1 - progress / CURRICULUM_END))
+    assert shares[-1][1] == 0.0
+    assert [s for _, s in shares] == sorted((s for _, s in shares), reverse=True)
 
 
 def test_distance_shaping_pays_c_times_d_minus_gamma_d_next(tmp_path: Path) -> None:
@@ -223,3 +267,51 @@ def test_listening_and_signalling_losses_add_to_the_td_loss(tmp_path: Path) -> N
     assert loss_with(Levers(listening=0.5)) < base  # minus a non-negative policy change
     assert loss_with(Levers(signalling=0.5)) != base
     assert loss_with(Levers()) == base
+
+
+def recorded_episodes(agents: tuple, epsilon: float) -> object:
+    env = VectorMultiAgentEnv(30, seed=641, max_steps=20)
+    return run_episodes(env, memory_policy(agents, env, epsilon, seed=2), 30, seed=4, record=True)
+
+
+def test_memory_states_replay_what_the_agents_acted_on() -> None:
+    torch.manual_seed(0)
+    agents = (RecurrentQNetwork("full", 16), RecurrentQNetwork("full", 16))
+    recorded = recorded_episodes(agents, 0.0)
+    observations, actions = recorded.trajectories["observations"], recorded.trajectories["actions"]
+    valid = actions[..., 0] >= 0
+    for i, agent in enumerate(agents):
+        previous, hidden = memory_states(agent, observations[:, :, i], actions[..., i])
+        obs = torch.from_numpy(np.ascontiguousarray(observations[:, :-1, i][valid]))
+        with torch.inference_mode():
+            q, _, _ = agent(obs, torch.from_numpy(previous[valid]), torch.from_numpy(hidden[valid]))
+        np.testing.assert_array_equal(q.numpy().argmax(axis=1), actions[..., i][valid])
+
+
+class MessageFollower(torch.nn.Module):
+    """A memory agent that moves up if the message it hears is at least 0.5, else down, and
+    sends 0, 1, 0, 1, ... (its hidden state counts the steps); ``hears`` False: deaf."""
+
+    def __init__(self, hears: bool) -> None:
+        super().__init__()
+        self.hears = hears
+
+    def initial_state(self, batch_size: int) -> torch.Tensor:
+        return torch.zeros(batch_size, 1)
+
+    def forward(self, obs: torch.Tensor, prev_action: torch.Tensor, h: torch.Tensor) -> tuple:
+        heard = obs[:, MESSAGE_INDEX] if self.hears else torch.zeros(len(obs))
+        q = torch.zeros(len(obs), 5)
+        q[:, 0], q[:, 1] = heard - 0.5, 0.5 - heard - 1e-3  # up where heard >= 0.5
+        return q, (h % 2).clone(), h + 1
+
+
+def test_memory_cic_is_zero_for_a_deaf_receiver_and_near_0_89_bits_for_a_follower() -> None:
+    follower = (MessageFollower(hears=True), MessageFollower(hears=True))
+    deaf = (MessageFollower(hears=False), MessageFollower(hears=False))
+    heard = memory_cic(follower, recorded_episodes(follower, 0.0), 0.05)
+    unheard = memory_cic(deaf, recorded_episodes(deaf, 0.0), 0.05)
+    assert unheard == pytest.approx({"K2": 0.0, "K10": 0.0}, abs=1e-12)
+    # Messages 0 and 1 about equally often; at eps 0.05 the follower's two policies put 0.96
+    # on one move each: CIC = 0.96 log2(0.96 / 0.485) + 0.01 log2(0.01 / 0.485) = 0.890 bits.
+    assert heard == pytest.approx({"K2": 0.890, "K10": 0.890}, abs=0.01)

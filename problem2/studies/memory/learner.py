@@ -27,10 +27,12 @@ from rollout import EVAL_SEED, evaluate_policy
 from torch.nn import functional as F
 from train_config import TrainConfig
 from trainer import MultiAgentTrainer
+from vector_env import VectorMultiAgentEnv
 
 from studies.memory.agents import NUM_ACTIONS, RecurrentQNetwork, export_recurrent, memory_policy
 
 TRANSITIONS_PER_EPISODE = 16  # a batch of batch_size transitions: batch_size // 16 episodes
+CURRICULUM_END = 0.5  # fraction of the run at which the curriculum's share reaches 0
 
 
 @dataclass(frozen=True)
@@ -43,12 +45,41 @@ class Levers:
     """λ of the positive-listening loss −λ E‖softmax Q(message) − softmax Q(mean message)‖₁."""
     signalling: float = 0.0
     """λ of the positive-signalling loss: −λ (H(mean message) − mean H(message))."""
+    curriculum: float = 0.0
+    """share of new training episodes that start with one agent on the target, falling
+    linearly to 0 at ``CURRICULUM_END`` of the run (homing is learned before search)."""
 
     def __post_init__(self) -> None:
-        for name in ("distance_potential", "listening", "signalling"):
+        for name in ("distance_potential", "listening", "signalling", "curriculum"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and 0.0 <= value < math.inf):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if self.curriculum > 1:
+            raise ValueError(f"curriculum must be a share in [0, 1], got {self.curriculum!r}")
+
+
+class CurriculumEnv(VectorMultiAgentEnv):
+    """The vectorised environment, except that a share ``start_on_target`` (0 unless set)
+    of the episodes it starts by itself begin with one agent, A or B at random, on the
+    target: the other agent's start cell is drawn as usual, and that agent counts as having
+    arrived (no arrival reward for it; the cells it sees count as seen)."""
+
+    start_on_target: float = 0.0
+
+    def _start_episodes(self, rows: np.ndarray, flat: np.ndarray | None = None) -> None:
+        super()._start_episodes(rows, flat)
+        if flat is not None or self.start_on_target <= 0 or not len(rows):
+            return
+        draws = self._rng.random((len(rows), 2))
+        target = self._copy_target[rows]
+        starts = self._flat[rows].copy()  # (n, 2)
+        chosen = (draws[:, 0] < self.start_on_target) & (starts != target[:, None]).all(axis=1)
+        if not chosen.any():
+            return
+        agent = (draws[chosen, 1] < 0.5).astype(np.int64)  # 1: B stands on the target
+        starts = starts[chosen]
+        starts[np.arange(len(starts)), agent] = target[chosen]
+        super()._start_episodes(rows[chosen], starts)
 
 
 def binary_entropy(p: torch.Tensor) -> torch.Tensor:
@@ -122,6 +153,8 @@ class RecurrentTrainer(MultiAgentTrainer):
             )
         self.cfg, self.env, self.mode, self.seed = cfg, env, mode, cfg.seed
         self.levers = levers
+        if levers.curriculum > 0:
+            self.vector_env_class = CurriculumEnv
         self.name = f"{mode}_seed{cfg.seed}"
         output_dir = Path(cfg.output_dir)
         self.models_dir, self.logs_dir = output_dir / "agent_models", output_dir / "training_logs"
@@ -186,6 +219,14 @@ class RecurrentTrainer(MultiAgentTrainer):
             actions = np.where(explore, rng.integers(0, NUM_ACTIONS, actions.shape), actions)
         self._previous = actions.astype(np.int64)
         return actions, messages
+
+    def step(self, rollout: Any, updates: float) -> tuple[np.ndarray, np.ndarray]:
+        """The core's step, after setting the curriculum's share (``Levers.curriculum``) for
+        the episodes that start in it."""
+        if self.levers.curriculum > 0:
+            remaining = max(0.0, 1.0 - self.progress() / CURRICULUM_END)
+            rollout.env.start_on_target = self.levers.curriculum * remaining
+        return super().step(rollout, updates)
 
     def learning_rewards(
         self, rewards: np.ndarray, info: dict[str, np.ndarray], obs: np.ndarray

@@ -6,7 +6,8 @@ maps only (the held-out maps are never used for a choice): the best checkpoint's
 last evaluation's success, greedy and at ε = 0.05. Settings (``SETTINGS``): the recipe, DIAL
 noise σ = 2 on the message logit (the DIAL paper's; 1 in the recipe), potential-based
 shaping by the agents' distance, a positive-listening loss, a positive-signalling loss,
-and runs twice as long.
+runs twice as long, and a curriculum (half of the first episodes start with one agent on
+the target, a share that falls to none at mid-run).
 
 ``python -m studies.memory.levers`` writes ``results/studies/memory_levers/levers.json``
 (and the runs' training logs beside it) and prints one line per setting.
@@ -41,6 +42,7 @@ SETTINGS: dict[str, dict[str, Any]] = {
     "listening_loss": {"levers": Levers(listening=0.1)},
     "signalling_loss": {"levers": Levers(signalling=0.1)},
     "twice_as_long": {"total_steps": 2 * RECIPE["total_steps"]},
+    "curriculum": {"levers": Levers(curriculum=0.5)},
 }
 TRAINING_SEEDS = (100, 101)
 LEVER_MODES = ("full",)

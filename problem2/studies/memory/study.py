@@ -126,6 +126,10 @@ def summarise(
         homing = np.sum([r["homing_counts_eps"] for r in mine], 0).tolist()
         entry["homing_share_eps"], entry["homing_counts_eps"] = shares(homing), homing
         if mode in CHANNELS["message"][1]:
+            entry["cic_bits"] = {
+                k: seed_statistics([r["cic_greedy_episodes"][k] for r in mine])
+                for k in mine[0]["cic_greedy_episodes"]
+            }
             sums = np.sum([r["message_on_off_eps"] for r in mine], 0)
             entry["mean_message_eps"] = {
                 "on_target": sums[0] / max(sums[1], 1),
@@ -162,6 +166,9 @@ def summarise(
             "the agent is not; Manhattan distance to the target",
             "interventions": "success with the channel replaced minus success with the "
             "real channel, same episodes; constant_mean is the run's own mean on the map",
+            "cic": "causal influence of the partner's message on the receiver's policy at "
+            "eps 0.05 (analysis.information), on the greedy episodes, the receiver's previous "
+            "action and hidden state held at the recorded ones; mean over maps and directions",
         },
         "recipe": cfg.hyperparameters(),
         "departures_from_the_assignment": map_pool_study.DEPARTURES
