@@ -143,6 +143,27 @@ def draw_map(ax: Axes, grid: np.ndarray, star_size: float = 18) -> None:
     ax.set_ylabel("row")
 
 
+def waiting_steps(trace: EpisodeTrace, target: tuple[int, int]) -> np.ndarray:
+    """Steps (2,) each agent spends on the target while its partner is not there yet (the
+    positions before each step)."""
+    on = (trace.positions[:-1] == np.asarray(target)).all(axis=-1)  # (L, 2)
+    return (on & ~on[:, ::-1]).sum(axis=0)
+
+
+def draw_waiting(ax: Axes, trace: EpisodeTrace, target: tuple[int, int]) -> str:
+    """A ring in the waiting agent's colour around the target for each agent that waits
+    there for its partner; returns the words for the title ("B waits 9 steps")."""
+    words = []
+    for agent, steps in enumerate(waiting_steps(trace, target)):
+        if steps > 0:
+            size = 15 + 5 * agent
+            colour, name = AGENT_COLOURS[agent], "AB"[agent]
+            ax.plot(target[1], target[0], "o", ms=size, mfc="none", mec=colour, mew=1.8,
+                    label=f"{name} waits on the target")  # fmt: skip
+            words.append(f"{name} waits {steps} step{'s' if steps != 1 else ''}")
+    return ", ".join(words)
+
+
 def draw_paths(ax: Axes, trace: EpisodeTrace, marker_scale: float = 1.0) -> None:
     """Both agents' paths: a line through the visited cells, a circle at the start and a
     square at the end."""
@@ -206,16 +227,22 @@ def _draw_trajectories(
                 ax.set_title(f"{head}no {kind} episode", fontsize=MIN_FONT)
                 continue
             draw_paths(ax, trace, marker_scale=0.7 if compact else 1.0)
+            waits = draw_waiting(ax, trace, tuple(np.argwhere(grid == TARGET)[0]))
             steps = f"{trace.length} step{'s' if trace.length != 1 else ''}"
             outcome = f"success in {steps}" if trace.success else "failure"
+            description = "; ".join(w for w in (trace.description, waits) if w)
             if compact:
-                ax.set_title(f"{outcome}\n{trace.description}", fontsize=MIN_FONT)
+                ax.set_title(f"{outcome}\n{description}", fontsize=MIN_FONT)
             else:
-                detail = f" ({trace.description})" if trace.description else ""
+                detail = f" ({description})" if description else ""
                 ax.set_title(f"{head}{outcome}{detail}", fontsize=MIN_FONT)
         if compact:
             row_axes[0].set_ylabel(f"{label}\nrow")
-    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=4)
+    handles = {}  # every panel's entries once (a ring only where an agent waits)
+    for ax in axes.flat:
+        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(name, handle)
+    fig.legend(handles.values(), handles.keys(), loc="outside lower center", ncol=3)
     if compact:
         fig.suptitle("Representative episodes and the messages sent from each cell (best seed)")
     else:

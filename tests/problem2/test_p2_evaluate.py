@@ -18,6 +18,7 @@ from analysis.failures import (
     on_target,
 )
 from analysis.information import causal_influence, mutual_information
+from analysis.plots import EpisodeTrace, waiting_steps
 from analysis.interventions import (
     INTERVENTIONS,
     channel_verdict,
@@ -382,3 +383,12 @@ def test_selection_by_steps_takes_the_fastest_of_the_nearly_most_successful() ->
     assert select_best([_pair(0.0, None), _pair(0.0, None)], "steps") == 0
     with pytest.raises(ValueError, match="select_by"):
         select_best(candidates, "luck")
+
+
+def test_waiting_steps_count_only_steps_alone_on_the_target() -> None:
+    target = (8, 1)
+    a = [(6, 1), (7, 1), (8, 1), (8, 1), (8, 1), (8, 1)]  # on the target from step 2
+    b = [(8, 4), (8, 3), (8, 2), (8, 2), (8, 1), (8, 1)]  # arrives at step 4
+    positions = np.stack([np.array(a), np.array(b)], axis=1)  # (L + 1, 2, 2)
+    trace = EpisodeTrace(positions=positions, messages=np.zeros((5, 2)), success=True)
+    np.testing.assert_array_equal(waiting_steps(trace, target), [2, 0])  # A waits at 2 and 3
