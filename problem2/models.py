@@ -290,19 +290,3 @@ def _without_debug_sources(archive: bytes) -> bytes:
                 entry, content_id if entry.filename.endswith("serialization_id") else data
             )
     return output.getvalue()
-
-
-def load_policy(path: str | Path) -> torch.jit.ScriptModule:
-    """Load a policy written by :func:`export_policy` (needs only ``torch.jit.load``).
-
-    Raises FileNotFoundError if ``path`` does not exist, ValueError if it is not a
-    TorchScript module."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no policy file at {path}")
-    try:
-        with _torchscript_without_deprecation_warnings():
-            policy = torch.jit.load(str(path), map_location="cpu")
-    except Exception as error:  # torch raises RuntimeError or zipfile/pickle errors
-        raise ValueError(f"{path} is not a valid TorchScript policy: {error}") from error
-    return policy.eval()

@@ -129,27 +129,6 @@ def _record_step(
         log[key][rows, t + 1] = new[rows]
 
 
-def split_blocks(results: EpisodeResults, blocks: int) -> list[EpisodeResults]:
-    """Split ``results`` of ``blocks`` equal consecutive blocks of episodes into one
-    ``EpisodeResults`` per block."""
-
-    def part(array: np.ndarray) -> list[np.ndarray]:
-        return np.split(array, blocks)
-
-    fields = [part(results.returns), part(results.successes), part(results.lengths)]
-    trajectories = results.trajectories
-    split = {k: part(v) for k, v in trajectories.items()} if trajectories is not None else None
-    return [
-        EpisodeResults(
-            fields[0][k],
-            fields[1][k],
-            fields[2][k],
-            {key: v[k] for key, v in split.items()} if split is not None else None,
-        )  # fmt: skip
-        for k in range(blocks)
-    ]
-
-
 def summarize(results: EpisodeResults) -> dict[str, float | int | None]:
     """Success rate, mean steps of the successful episodes (None if none), mean return."""
     successes = results.successes

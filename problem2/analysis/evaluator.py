@@ -17,7 +17,6 @@ from rollout import (
     EpisodeResults,
     PolicyFn,
     run_episodes,
-    split_blocks,
     summarize,
 )
 from vector_env import VectorMultiAgentEnv
@@ -44,6 +43,27 @@ from analysis.runs import Experiment, check_policy, load_model_pair, model_paths
 
 GENERALIZATION_MAP_SEEDS = tuple(range(10))
 PolicyFactory = Callable[[np.ndarray], PolicyFn]  # map (H, W) -> greedy policy on that map
+
+
+def split_blocks(results: EpisodeResults, blocks: int) -> list[EpisodeResults]:
+    """Split ``results`` of ``blocks`` equal consecutive blocks of episodes into one
+    ``EpisodeResults`` per block."""
+
+    def part(array: np.ndarray) -> list[np.ndarray]:
+        return np.split(array, blocks)
+
+    fields = [part(results.returns), part(results.successes), part(results.lengths)]
+    trajectories = results.trajectories
+    split = {k: part(v) for k, v in trajectories.items()} if trajectories is not None else None
+    return [
+        EpisodeResults(
+            fields[0][k],
+            fields[1][k],
+            fields[2][k],
+            {key: v[k] for key, v in split.items()} if split is not None else None,
+        )  # fmt: skip
+        for k in range(blocks)
+    ]
 
 
 class MultiAgentEvaluator:

@@ -27,10 +27,9 @@ import torch
 import train
 from analysis.episodes import EvaluationSetting, model_policy
 from analysis.failures import arrivals
-from analysis.runs import load_model_pair
+from analysis.runs import load_map, load_model_pair
 from batch_io import write_json_atomic
 from experiments import read_csv
-from grid_maps import load_map
 from rollout import VALIDATION_SEED, run_episodes
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "stability"

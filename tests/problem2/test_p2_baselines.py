@@ -20,8 +20,9 @@ from analysis.baselines import (
     oracle_policy,
     random_policy,
     shortest_path_actions,
+    target_distances,
 )
-from grid_maps import ACTION_DELTAS, generate_map, target_distances
+from grid_maps import ACTION_DELTAS, generate_map
 from rollout import evaluate_policy, run_episodes
 from vector_env import VectorMultiAgentEnv
 

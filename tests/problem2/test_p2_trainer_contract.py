@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from models import export_policy, load_policy, observation_mask
+from analysis.runs import load_policy
+from models import export_policy, observation_mask
 from multi_agent_env import MultiAgentEnv
 from rollout import VALIDATION_SEED, select_best
 from train_config import TrainConfig

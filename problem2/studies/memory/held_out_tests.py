@@ -10,8 +10,9 @@ from typing import Any
 
 import numpy as np
 from analysis.baselines import POLICIES
+from analysis.held_out import held_out_maps
 from analysis.interventions import intervene, intervention_table, real_steps
-from grid_maps import HELD_OUT_MAP_SEEDS, held_out_maps
+from grid_maps import HELD_OUT_MAP_SEEDS
 from models import DISTANCE_INDEX, MESSAGE_INDEX
 from rollout import EVAL_EPSILON, EVAL_SEED, EpisodeResults, run_episodes
 from vector_env import VectorMultiAgentEnv

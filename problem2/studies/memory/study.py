@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from analysis.runs import load_policy
 from analysis.stats import seed_paired_differences, seed_statistics
 from batch_io import (
     ProgressLine,
@@ -40,7 +41,6 @@ from batch_io import (
 )
 from grid_maps import HELD_OUT_MAP_SEEDS
 from matplotlib.figure import Figure
-from models import load_policy
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED
 from train_config import SettingError, TrainConfig, available_cores, check_value, int_in
