@@ -26,12 +26,7 @@ VALIDATION_SEED = 6_000_000  # other start cells, for checkpoint and seed select
 
 @dataclass
 class EpisodeResults:
-    """Per-episode outcomes (E,) and, if recorded, trajectories padded to max_steps T.
-
-    ``trajectories``: positions (E, T + 1, 2, 2) and observations (E, T + 1, 2, obs_dim)
-    before each step and after the last (held after the episode ends); actions (E, T, 2)
-    (-1 after the end), messages sent (E, T, 2) (NaN after), rewards (E, T) (0 after).
-    """
+    """Per-episode outcomes (E,); ``trajectories`` if recorded (``analysis.episodes``)."""
 
     returns: np.ndarray
     successes: np.ndarray
@@ -44,7 +39,6 @@ def run_episodes(
     policy_fn: PolicyFn,
     num_episodes: int,
     seed: int | None = None,
-    record: bool = False,
     start_positions: np.ndarray | None = None,
 ) -> EpisodeResults:
     """Run ``num_episodes`` episodes of ``policy_fn`` in rounds of ``env.n_envs``.
@@ -62,24 +56,20 @@ def run_episodes(
     if num_episodes < 1:
         raise ValueError(f"num_episodes must be positive, got {num_episodes}")
     rounds = [
-        _run_round(
-            env, policy_fn, seed if i == 0 else None, record, start_positions if i == 0 else None
-        )
+        _run_round(env, policy_fn, seed if i == 0 else None, start_positions if i == 0 else None)
         for i in range(math.ceil(num_episodes / env.n_envs))
     ]
     joined = {key: np.concatenate([r[key] for r in rounds])[:num_episodes] for key in rounds[0]}
-    outcomes = {key: joined.pop(key) for key in ("returns", "successes", "lengths")}
-    return EpisodeResults(**outcomes, trajectories=joined if record else None)
+    return EpisodeResults(**joined)
 
 
 def _run_round(
     env: VectorMultiAgentEnv,
     policy_fn: PolicyFn,
     seed: int | None,
-    record: bool,
     start_positions: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
-    n, horizon = env.n_envs, env.max_steps
+    n = env.n_envs
     obs = env.reset(seed=seed, positions=start_positions)
     active = np.ones(n, dtype=bool)
     result = {
@@ -87,21 +77,10 @@ def _run_round(
         "successes": np.zeros(n, dtype=bool),
         "lengths": np.zeros(n, dtype=np.int64),
     }
-    if record:
-        result |= {
-            "positions": np.zeros((n, horizon + 1, 2, 2), dtype=np.int64),
-            "observations": np.zeros((n, horizon + 1, 2, env.obs_dim), dtype=np.float32),
-            "actions": np.full((n, horizon, 2), -1, dtype=np.int64),
-            "messages": np.full((n, horizon, 2), np.nan, dtype=np.float32),
-            "rewards": np.zeros((n, horizon), dtype=np.float32),
-        }
-        result["positions"][:, 0], result["observations"][:, 0] = env.positions, obs
-    for t in range(horizon):
+    for _ in range(env.max_steps):
         actions, messages = policy_fn(obs, env.positions)
         obs, rewards, terminated, truncated, info = env.step(actions, messages)
         result["returns"] += np.where(active, rewards, 0.0)
-        if record:
-            _record_step(result, t, active, actions, messages, rewards, info)
         finished = active & (terminated | truncated)
         result["successes"][finished] = terminated[finished]
         result["lengths"][finished] = info["steps"][finished]
@@ -109,24 +88,6 @@ def _run_round(
         if not active.any():
             break
     return result
-
-
-def _record_step(
-    log: dict[str, np.ndarray],
-    t: int,
-    active: np.ndarray,
-    actions: np.ndarray,
-    messages: np.ndarray,
-    rewards: np.ndarray,
-    info: dict,
-) -> None:
-    rows = np.flatnonzero(active)
-    log["actions"][rows, t] = actions[rows]
-    log["messages"][rows, t] = messages[rows]
-    log["rewards"][rows, t] = rewards[rows]
-    for key, new in (("positions", info["positions"]), ("observations", info["final_obs"])):
-        log[key][:, t + 1] = log[key][:, t]  # hold the last state after the episode ends
-        log[key][rows, t + 1] = new[rows]
 
 
 def summarize(results: EpisodeResults) -> dict[str, float | int | None]:

@@ -28,6 +28,7 @@ from analysis.episodes import (
     episode_summary,
     explore_by_step,
     model_policy,
+    recorded_episodes,
     start_positions,
 )
 from analysis.interventions import (
@@ -146,7 +147,8 @@ class MultiAgentEvaluator:
             rates = np.repeat([epsilons[k] for k in group], num_episodes)
             policy = explore_by_step(policy, env, rates, num_episodes, self.seed)
             both = np.tile(starts, (len(group), 1, 1))
-            run = run_episodes(env, policy, len(both), record=record, start_positions=both)
+            run_all = recorded_episodes if record else run_episodes
+            run = run_all(env, policy, len(both), start_positions=both)
             results += split_blocks(run, len(group))
         return results
 
@@ -178,7 +180,7 @@ class MultiAgentEvaluator:
         )
         seed = self.seed + 10_000 + self._episodes_run
         self._episodes_run += 1
-        run = run_episodes(env, policy, 1, seed=seed, record=True)
+        run = recorded_episodes(env, policy, 1, seed=seed)
         steps, trajectories = int(run.lengths[0]), run.trajectories
         positions = trajectories["positions"][0, : steps + 1]
         actions, messages = trajectories["actions"][0, :steps], trajectories["messages"][0, :steps]
