@@ -236,26 +236,6 @@ def choose_maps(
     return one_map[None], one_map
 
 
-def check_cell_array(positions: object, n_envs: int, name: str) -> np.ndarray:
-    """``positions`` as an (N, 2, 2) integer array of (row, col) cells (not yet checked
-    against the map), or ValueError."""
-    positions = np.asarray(positions)
-    if positions.shape != (n_envs, 2, 2) or positions.dtype.kind not in "iu":
-        raise ValueError(
-            f"{name} must be integers of shape ({n_envs}, 2, 2), "
-            f"got {positions.dtype} {positions.shape}"
-        )
-    return positions
-
-
-def check_action_values(actions: object) -> np.ndarray:
-    """``actions`` of any shape as an integer array in 0..4, or ValueError."""
-    actions = np.asarray(actions)
-    if actions.dtype.kind not in "iu" or (actions < 0).any() or (actions >= NUM_ACTIONS).any():
-        raise ValueError(f"actions must be integers in 0..{NUM_ACTIONS - 1}, got {actions}")
-    return actions
-
-
 def check_joint_actions(actions: np.ndarray, n_envs: int) -> np.ndarray:
     """``actions`` as an (N, 2) integer array in 0..4, or ValueError."""
     actions = np.asarray(actions)

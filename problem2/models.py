@@ -10,7 +10,6 @@ from __future__ import annotations
 import copy
 import hashlib
 import io
-import numbers
 import warnings
 import zipfile
 from collections.abc import Iterator, Sequence
@@ -20,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from batch_io import temporary_path_for
+from grid_maps import positive_int
 from torch import nn
 
 OBSERVATION_DIM = 11  # the default 3 x 3 window: 9 cells, message, distance
@@ -62,11 +62,6 @@ def observation_mask(mode: str, obs_dim: int = OBSERVATION_DIM) -> np.ndarray:
     return _mask(mode, obs_dim)
 
 
-def _check_size(name: str, value: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-
-
 class MessagingQNetwork(nn.Module):
     """Shared part: the hidden ReLU layer, the sigmoid message head and ``forward``.
     Subclasses add the Q head(s) and define ``forward_with_logit(x) -> (q, logit)``."""
@@ -74,7 +69,7 @@ class MessagingQNetwork(nn.Module):
     def __init__(self, input_dim: int, hidden_dim: int) -> None:
         super().__init__()
         for name, value in (("input_dim", input_dim), ("hidden_dim", hidden_dim)):
-            _check_size(name, value)
+            positive_int(value, name)
         self.hidden = nn.Linear(input_dim, hidden_dim)
         self.message_head = nn.Linear(hidden_dim, 1)
 
@@ -90,7 +85,7 @@ class AgentDQN(MessagingQNetwork):
 
     def __init__(self, input_dim: int = 11, hidden_dim: int = 64, num_actions: int = 5) -> None:
         super().__init__(input_dim, hidden_dim)
-        _check_size("num_actions", num_actions)
+        positive_int(num_actions, "num_actions")
         self.q_head = nn.Linear(hidden_dim, num_actions)
 
     def forward_with_logit(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -107,7 +102,7 @@ class DuelingDQN(MessagingQNetwork):
 
     def __init__(self, input_dim: int = 11, hidden_dim: int = 64, num_actions: int = 5) -> None:
         super().__init__(input_dim, hidden_dim)
-        _check_size("num_actions", num_actions)
+        positive_int(num_actions, "num_actions")
         self.value_head = nn.Linear(hidden_dim, 1)
         self.advantage_head = nn.Linear(hidden_dim, num_actions)
 

@@ -100,10 +100,6 @@ class MultiAgentEnv:
     def target_pos(self) -> tuple[int, int]:
         return self._vector.target_position
 
-    @property
-    def target_position(self) -> tuple[int, int]:
-        return self._vector.target_position
-
     def reset(
         self, seed: int | None = None, positions: list | None = None
     ) -> tuple[np.ndarray, np.ndarray]:

@@ -16,8 +16,6 @@ from grid_maps import (
     FREE,
     OFF_GRID,
     TARGET,
-    check_action_values,
-    check_cell_array,
     check_choice,
     check_joint_actions,
     check_messages,
@@ -188,8 +186,14 @@ class VectorMultiAgentEnv:
         return self._copy_base.reshape((-1,) + (1,) * (rows.ndim - 1))
 
     def _check_cells(self, positions: object, name: str) -> np.ndarray:
-        """``positions`` (N, 2, 2) integer (row, col) cells inside the grid, not obstacles."""
-        positions = check_cell_array(positions, self.n_envs, name)
+        """Flat cells of ``positions`` (N, 2, 2), integer (row, col) cells inside the grid,
+        not obstacles; ValueError naming ``name`` otherwise."""
+        positions = np.asarray(positions)
+        if positions.shape != (self.n_envs, 2, 2) or positions.dtype.kind not in "iu":
+            raise ValueError(
+                f"{name} must be integers of shape ({self.n_envs}, 2, 2), "
+                f"got {positions.dtype} {positions.shape}"
+            )
         if not self.is_passable(positions[..., 0], positions[..., 1]).all():
             raise ValueError(
                 f"{name} must be cells inside the {self.grid_size[0]}x{self.grid_size[1]} grid "
@@ -268,10 +272,8 @@ class VectorMultiAgentEnv:
 
     def next_cells(self, rows: np.ndarray, cols: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """Cells (..., 2) reached from passable cells ``(rows, cols)`` by ``actions`` (same
-        shape, ints 0..4); a move into a wall or an obstacle stays in place."""
-        actions = check_action_values(actions)
-        if not self.is_passable(rows, cols).all():
-            raise ValueError("cells must be inside the grid and not obstacles")
+        shape, ints 0..4; both checked by the caller, ``MultiAgentEnv._apply_action``); a
+        move into a wall or an obstacle stays in place."""
         flat = self._to_flat(rows, cols) + self._bases_for(np.asarray(rows))
         return self._rows_cols(self._move(flat, actions))
 
@@ -362,10 +364,6 @@ class VectorMultiAgentEnv:
         self._start_episodes(every_copy, flat)
         return self.current_observations()
 
-    def check_actions(self, actions: np.ndarray) -> np.ndarray:
-        """``actions`` as an (N, 2) integer array in 0..4, or ValueError."""
-        return check_joint_actions(actions, self.n_envs)
-
     def step(
         self, actions: np.ndarray, messages: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
@@ -381,7 +379,7 @@ class VectorMultiAgentEnv:
         and with ``track_coverage`` ``newly_seen`` (N,) int64.
         Without ``auto_reset``, stepping after a copy finished raises ValueError.
         """
-        actions = self.check_actions(actions)
+        actions = check_joint_actions(actions, self.n_envs)
         messages = check_messages(messages, self.n_envs)
         if self._finished.any():
             raise ValueError(
