@@ -587,20 +587,6 @@ class MultiAgentTrainer:
         return self.checkpoints[select_best(pairs, self.cfg.select_by)]
 
     @property
-    def best_env_steps(self) -> int:
-        """Environment steps at the best checkpoint (0 before the first evaluation)."""
-        best = self.best_checkpoint()
-        return 0 if best is None else best.env_steps
-
-    @property
-    def best_selection(self) -> dict[str, float]:
-        """Validation success rates of the best checkpoint, ``greedy`` and ``eps``."""
-        best = self.best_checkpoint()
-        if best is None:
-            return {}
-        return {c: getattr(best, c)["success_rate"] for c in ("greedy", "eps")}
-
-    @property
     def log_path(self) -> Path:
         return self.logs_dir / f"{self.name}.csv"
 
