@@ -25,16 +25,22 @@ from torch import nn
 OBSERVATION_DIM = 11  # the default 3 x 3 window: 9 cells, message, distance
 MESSAGE_INDEX = 9  # the partner's last message (w² for a w x w window)
 DISTANCE_INDEX = 10  # normalised distance between the agents (w² + 1)
-# The observation elements each ablation zeroes (for the 3 x 3 window; for a w x w window
-# the message and distance are elements w² and w² + 1, the same distance from the end).
-MASKED_INPUTS = {
+MASKED_INPUTS = {  # the observation elements each ablation zeroes (3 x 3 window)
     "independent": (MESSAGE_INDEX, DISTANCE_INDEX),  # patch only
     "comm": (DISTANCE_INDEX,),  # patch + message
     "full": (),  # patch + message + distance
 }
 
 
-def _mask(mode: str, obs_dim: int) -> np.ndarray:
+def observation_mask(mode: str, obs_dim: int = OBSERVATION_DIM) -> np.ndarray:
+    """The multiplicative mask (obs_dim,) float32, read-only, of ablation ``mode``, used
+    wherever a network sees an observation (acting, both TD passes, evaluation, inside
+    exported policies). For a w x w window (obs_dim w² + 2) the message and the distance
+    are elements w² and w² + 1. ValueError for an unknown mode."""
+    if mode not in MASKED_INPUTS:
+        raise ValueError(f"unknown mode {mode!r}; expected one of {sorted(MASKED_INPUTS)}")
+    if obs_dim < 3:
+        raise ValueError(f"obs_dim must be at least 3 (patch, message, distance), got {obs_dim}")
     mask = np.ones(obs_dim, dtype=np.float32)
     for index in MASKED_INPUTS[mode]:
         mask[index + obs_dim - OBSERVATION_DIM] = 0.0
@@ -42,24 +48,7 @@ def _mask(mode: str, obs_dim: int) -> np.ndarray:
     return mask
 
 
-# Multiplicative masks (11,) float32 of the three ablations, used wherever a network sees
-# an observation: acting, both TD passes, evaluation, and inside exported policies.
-OBSERVATION_MASKS = {mode: _mask(mode, OBSERVATION_DIM) for mode in MASKED_INPUTS}
-
-
-def observation_mask(mode: str, obs_dim: int = OBSERVATION_DIM) -> np.ndarray:
-    """The mask (obs_dim,) float32 of ablation ``mode``; ValueError for an unknown mode.
-
-    An observation of a w x w window has w² + 2 elements: the patch, then the message
-    (index w²) and the distance (index w² + 1); ``independent`` zeroes both, ``comm``
-    the distance, ``full`` nothing."""
-    if mode not in MASKED_INPUTS:
-        raise ValueError(f"unknown mode {mode!r}; expected one of {sorted(MASKED_INPUTS)}")
-    if obs_dim == OBSERVATION_DIM:
-        return OBSERVATION_MASKS[mode]
-    if obs_dim < 3:
-        raise ValueError(f"obs_dim must be at least 3 (patch, message, distance), got {obs_dim}")
-    return _mask(mode, obs_dim)
+OBSERVATION_MASKS = {mode: observation_mask(mode) for mode in MASKED_INPUTS}  # (11,) each
 
 
 class MessagingQNetwork(nn.Module):

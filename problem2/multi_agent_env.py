@@ -4,10 +4,9 @@ Both agents must stand on the single target cell on the same step. Each agent se
 ``obs_window × obs_window`` patch around itself, the message its partner sent on the
 previous step and the normalised distance between the two agents.
 
-``vector_env.VectorMultiAgentEnv`` holds the only implementation of the dynamics,
-observations and rewards, stepping N copies of one map with NumPy arrays. ``MultiAgentEnv``
-is the course interface: a thin N = 1 view of it. Maps (generation, validation, JSON files)
-live in ``grid_maps.py``.
+``MultiAgentEnv`` is the course interface, a thin N = 1 view of
+``vector_env.VectorMultiAgentEnv`` (the dynamics, observations and rewards); maps are made
+in ``grid_maps.py``.
 
 Observation of one agent (length ``obs_window² + 2``, 11 for the default window of 3):
   0..8  the patch, row-major (0 free, 1 obstacle, 2 target, -1 off-grid; agents not drawn)
@@ -52,8 +51,7 @@ def _message(value: object, name: str) -> float:
 
 
 class MultiAgentEnv:
-    """One environment with the course interface: an N = 1 view of VectorMultiAgentEnv
-    (see there for the rewards; the default is the assignment's table).
+    """One environment with the course interface: an N = 1 view of VectorMultiAgentEnv.
 
     Starter attributes, always in sync with the state: ``agent_positions`` (settable),
     ``comm_signals`` ([message from A, message from B]), ``step_count``, ``target_pos``.
@@ -113,13 +111,9 @@ class MultiAgentEnv:
     ) -> tuple[tuple[np.ndarray, np.ndarray], float, bool]:
         """One joint step: ((obs_A, obs_B), team reward, done). ``done`` is True when both
         agents stand on the target or ``max_steps`` steps have passed. Messages are clipped
-        into [0, 1].
-
-        The team reward, one value per step (``vector_env.team_rewards``): +10 when both
-        agents stand on the target (the episode ends); with the default ``per_step`` +2 on
-        every step on which exactly one stands on it; with ``arrival`` +2 on the step on
-        which an agent first reaches it in the episode; -0.1 otherwise (``goal``, which the
-        trainer learns from with its potential-based arrival term, pays no +2)."""
+        into [0, 1]. The team reward (``vector_env.team_rewards``, one value per step): +10
+        when both stand on the target; by default +2 on every step on which exactly one
+        does; -0.1 otherwise."""
         actions = np.array([[_action(action_A, "action_A"), _action(action_B, "action_B")]])
         messages = np.array([[_message(comm_A, "comm_A"), _message(comm_B, "comm_B")]])
         obs, rewards, terminated, truncated, _ = self._vector.step(actions, messages)

@@ -2,10 +2,9 @@
 
 ``VectorMultiAgentEnv`` holds the only implementation of the environment, stepping N copies
 with NumPy arrays (the trainer collects experience from 64 copies, the evaluator runs 1000
-test episodes together). ``multi_agent_env.MultiAgentEnv`` is the course interface: a thin
-N = 1 view of it. Observations, actions and rewards are described in ``multi_agent_env``.
-The copies share one map by default; they may also each hold their own (``grids``), or
-draw a new map from a pool at every episode start (``map_pool``).
+test episodes together); ``multi_agent_env`` describes observations and actions and holds
+the course interface. The copies share one map by default; they may also each hold their
+own (``grids``), or draw a new map from a pool at every episode start (``map_pool``).
 """
 
 from __future__ import annotations
@@ -79,17 +78,9 @@ class VectorMultiAgentEnv:
     ``track_coverage`` adds ``info["newly_seen"]`` (N,): grid cells that entered either
     agent's patch for the first time in the episode on this step.
 
-    One team reward per step (never a per-agent sum):
-      * ``reward_mode="per_step"`` (default, the assignment's table): +10 when both agents
-        stand on the target (the episode terminates), +2 on every step on which exactly one
-        agent stands on it, -0.1 otherwise.
-      * ``reward_mode="arrival"`` (an earlier trained reward, kept for the reward study):
-        +10 when both stand on the target (terminates), +2 on a step on which an agent
-        reaches the target for the first time in the episode, -0.1 otherwise. Leaving and
-        coming back pays nothing; an agent placed on the target at the start has already
-        "arrived".
-      * ``reward_mode="goal"`` (what the trainer learns from, with its potential-based
-        arrival term): +10 when both stand on the target (terminates), -0.1 otherwise.
+    One team reward per step, never a per-agent sum: :func:`team_rewards` of
+    ``reward_mode`` (default ``per_step``, the assignment's table; an agent placed on the
+    target has already "arrived"). Both agents on the target terminates the episode;
     ``truncated`` is set when ``max_steps`` steps pass without termination.
     """
 
@@ -309,18 +300,13 @@ class VectorMultiAgentEnv:
         """Begin new episodes in copies ``rows`` (their maps already drawn): place agents
         (random distinct free cells unless ``flat`` is given), clear messages, counters,
         arrival flags and, if tracked, the cells seen."""
-        if flat is None and len(self.grids) == 1:
-            n_cells = len(self._start_cells)
+        if flat is None:
+            maps = self._map_index[rows]
+            n_cells = self._free_counts[maps][:, None] - np.array([0, 1])  # A's, then B's
             # floor(uniform * n) is uniform on 0..n-1 and several times faster than
             # Generator.integers for small batches.
-            cells = (self._rng.random((len(rows), 2)) * (n_cells, n_cells - 1)).astype(np.int64)
-            cells[:, 1] += cells[:, 1] >= cells[:, 0]  # B uniform over the cells A left
-            flat = self._start_cells[cells]
-        elif flat is None:  # the same draw, with each copy's own number of free cells
-            maps = self._map_index[rows]
-            n_cells = self._free_counts[maps][:, None] - np.array([0, 1])
             cells = (self._rng.random((len(rows), 2)) * n_cells).astype(np.int64)
-            cells[:, 1] += cells[:, 1] >= cells[:, 0]
+            cells[:, 1] += cells[:, 1] >= cells[:, 0]  # B uniform over the cells A left
             flat = self._start_cells_by_map[maps[:, None], cells]
         self._flat[rows] = flat
         self._messages[rows] = 0.0
