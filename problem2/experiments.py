@@ -41,10 +41,10 @@ from batch_io import (
     write_json_atomic,
 )
 from grid_maps import generate_map, save_map
-from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, VALIDATION_SEED, select_best
 from train_config import DEFAULT_OUTPUT_DIR, SettingError, TrainConfig
 from trainer import LAST_WEIGHTS, MultiAgentTrainer
+from vector_env import VectorMultiAgentEnv
 
 PROBLEM2 = Path(__file__).resolve().parent
 MANIFEST = "manifest.json"
@@ -156,12 +156,10 @@ def train_one(
         **{**cfg.to_dict(), "mode": mode, "seed": seed, "seeds": [], "workers": 1}
         | {"output_dir": str(models_dir.parent)}
     )
-    env = MultiAgentEnv(
-        grid_size=cfg.grid_shape(),
-        max_steps=cfg.max_steps,
-        seed=cfg.map_seed,
+    env = VectorMultiAgentEnv(  # the map: the trainer reads its grid, window and time limit
+        1, grid_size=cfg.grid_shape(), max_steps=cfg.max_steps, seed=cfg.map_seed,
         reward_mode=cfg.reward_mode,
-    )
+    )  # fmt: skip
     trainer = MultiAgentTrainer(env, run_cfg)
     # train() appends each log row to its CSV file as it is measured and saves the models.
     trainer.models_dir, trainer.logs_dir = models_dir, logs_dir

@@ -20,7 +20,7 @@ Positions are (row, col), row 0 at the top.
 from __future__ import annotations
 
 import numpy as np
-from grid_maps import NUM_ACTIONS
+from grid_maps import NUM_ACTIONS, OBSTACLE, TARGET
 from vector_env import VectorMultiAgentEnv
 
 
@@ -48,6 +48,22 @@ def _message(value: object, name: str) -> float:
     if not np.isfinite(number):
         raise ValueError(f"{name} must be a finite number (clipped into [0, 1]), got {value!r}")
     return number
+
+
+def render_state(
+    grid: np.ndarray, positions: np.ndarray, step: int, max_steps: int, messages
+) -> str:
+    """Text picture of one state: A, B (* when sharing a cell), T target, X obstacle, and
+    the step with the messages just sent."""
+    cells = np.array([".", "X", "T"])[np.where(grid == OBSTACLE, 1, np.where(grid == TARGET, 2, 0))]
+    (row_a, col_a), (row_b, col_b) = positions
+    cells[row_a, col_a] = "A"
+    cells[row_b, col_b] = "*" if (row_a, col_a) == (row_b, col_b) else "B"
+    picture = "\n".join(" ".join(row) for row in cells)
+    return (
+        f"{picture}\nstep {step}/{max_steps}  message A->B {float(messages[0]):.2f}  "
+        f"B->A {float(messages[1]):.2f}"
+    )
 
 
 class MultiAgentEnv:
@@ -141,4 +157,6 @@ class MultiAgentEnv:
         return [(int(r), int(c)) for r, c in self._vector.free_cells]
 
     def render(self) -> None:
-        self._vector.render(0)
+        """Print the grid with the agents, the step and the last messages."""
+        positions, messages = self._vector.positions[0], self._vector.messages[0]
+        print(render_state(self.grid, positions, self.step_count, self.max_steps, messages))

@@ -22,14 +22,13 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from grid_maps import NUM_ACTIONS, TARGET, training_maps, validation_maps
 from models import PairedQNetworks, export_policy, observation_mask
-from multi_agent_env import MultiAgentEnv
 from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
 from rollout import (
     EVAL_EPSILON,
@@ -75,6 +74,16 @@ def config_from(args: Any) -> TrainConfig:
     settings.setdefault("output_dir", "results")  # like the skeleton
     settings.pop("grid_size", None)  # the trainer trains on env's grid
     return TrainConfig(**settings).validate()
+
+
+class MapSource(Protocol):
+    """What the trainer reads of its environment (a ``MultiAgentEnv`` or a one-map
+    ``VectorMultiAgentEnv``): the map (H, W), its size, the window and the time limit."""
+
+    grid: np.ndarray
+    grid_size: tuple[int, int]
+    obs_window: int
+    max_steps: int
 
 
 @dataclass
@@ -134,14 +143,15 @@ class MultiAgentTrainer:
     """Trains agents A and B of one ablation mode with one seed.
 
     Args:
-        env: the environment whose map, window and time limit training uses.
+        env: the environment (:class:`MapSource`) whose map, window and time limit training
+            uses.
         args: a :class:`TrainConfig`, or any namespace with some of its fields (the course
             skeleton's works); ``mode`` one of independent, comm, full (missing or ``all``
             means full); the run's seed is ``args.seed``; outputs go to
             ``<args.output_dir>/agent_models`` and ``/training_logs`` (default ``results``).
     """
 
-    def __init__(self, env: MultiAgentEnv, args: Any) -> None:
+    def __init__(self, env: MapSource, args: Any) -> None:
         cfg = self.cfg = config_from(args)
         if cfg.mode not in ("independent", "comm", "full"):
             raise ValueError(f"a trainer trains one mode, got mode={cfg.mode!r}")

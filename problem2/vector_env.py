@@ -398,16 +398,3 @@ class VectorMultiAgentEnv:
             self._start_episodes(rows)
             obs[rows] = self._observe(self._flat[rows], self._messages[rows])
         return obs, rewards, terminated, truncated, info
-
-    def render(self, env_index: int = 0) -> None:
-        """Print copy ``env_index``: A, B (* when sharing a cell), T target, X obstacle."""
-        cells = np.array([".", "X", "T"])[self.grids[self._map_index[env_index]]]
-        (row_a, col_a), (row_b, col_b) = self.positions[env_index]
-        cells[row_a, col_a] = "A"
-        cells[row_b, col_b] = "*" if (row_a, col_a) == (row_b, col_b) else "B"
-        print("\n".join(" ".join(row) for row in cells))
-        message_a, message_b = self._messages[env_index]
-        print(
-            f"step {self._steps[env_index]}/{self.max_steps}  message A->B {message_a:.2f}  "
-            f"B->A {message_b:.2f}"
-        )

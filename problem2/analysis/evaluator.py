@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 import torch
-from grid_maps import ACTION_NAMES, OBSTACLE, TARGET, generate_map
-from multi_agent_env import MultiAgentEnv
+from grid_maps import ACTION_NAMES, generate_map
+from multi_agent_env import MultiAgentEnv, render_state
 from rollout import (
     EVAL_EPSILON,
     EVAL_SEED,
@@ -370,19 +370,3 @@ def block_policy(factories: list[PolicyFactory], grid: np.ndarray, block_size: i
         return np.concatenate([a for a, _ in outputs]), np.concatenate([m for _, m in outputs])
 
     return act
-
-
-def render_state(
-    grid: np.ndarray, positions: np.ndarray, step: int, max_steps: int, messages
-) -> str:
-    """Text picture of one state: A, B (* when sharing a cell), T target, X obstacle, and
-    the step with the messages just sent."""
-    cells = np.array([".", "X", "T"])[np.where(grid == OBSTACLE, 1, np.where(grid == TARGET, 2, 0))]
-    (row_a, col_a), (row_b, col_b) = positions
-    cells[row_a, col_a] = "A"
-    cells[row_b, col_b] = "*" if (row_a, col_a) == (row_b, col_b) else "B"
-    picture = "\n".join(" ".join(row) for row in cells)
-    return (
-        f"{picture}\nstep {step}/{max_steps}  message A->B {float(messages[0]):.2f}  "
-        f"B->A {float(messages[1]):.2f}"
-    )
