@@ -286,11 +286,8 @@ def manifest(
 def model_listing(files: dict[str, str], models_dir: Path) -> dict[str, dict[str, str]]:
     """The manifest's record of a model pair: its files (relative to ``models_dir``) and
     their sha256."""
-    return {"models": files, "sha256": {a: file_sha256(models_dir / f) for a, f in files.items()}}
-
-
-def file_sha256(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    digests = {a: hashlib.sha256((models_dir / f).read_bytes()) for a, f in files.items()}
+    return {"models": files, "sha256": {a: d.hexdigest() for a, d in digests.items()}}
 
 
 def code_version() -> str:

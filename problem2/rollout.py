@@ -145,30 +145,19 @@ def evaluate_policy(
 class NStepWindow:
     """Turns the steps of N parallel episodes into n-step transitions.
 
-    The transition that starts at step t of an episode carries the discounted reward
-    R = r_t + γ r_{t+1} + ... + γ^(k-1) r_{t+k-1}, the observation s_{t+k} it bootstraps
-    from (``next_state_*``), the observation s_{t+k-1} one step before it (``last_state_*``,
-    whose sender's message s_{t+k} holds; only for n > 1, where it differs from the state),
-    and the discount γ^k, or 0 if the episode terminated within those k steps. k is n, or
-    fewer where the episode ends (terminal or cut off) before t + n. A transition leaves the
-    window at step t + k - 1; with n = 1 every step is its own transition at once.
+    The transition that starts at step t carries the discounted reward R = r_t + γ r_{t+1}
+    + ... + γ^(k-1) r_{t+k-1}, the observation s_{t+k} it bootstraps from (``next_state_*``),
+    for n > 1 the observation s_{t+k-1} before it (``last_state_*``, whose sender's message
+    s_{t+k} holds) and the discount γ^k, 0 if the episode terminated within those k steps;
+    k is n, or fewer where the episode ends (terminal or cut off) first. The caller gives
+    the fields known at the start (state, action, message, ...), each (N, ...); the window
+    adds ``reward``, ``next_state_A``/``_B``, ``done`` and ``discount``.
 
-    The caller gives the fields known when a transition starts (state, action, message,
-    ...), each (N, ...); the window adds ``reward``, ``next_state_A``/``_B``, ``done`` and
-    ``discount`` (and ``last_state_A``/``_B`` for n > 1).
-
-    Slot layout, e.g. n = 3 steps and N = 2 copies: the transition that starts at step s of
-    the run in copy c is slot (s % 3) * 2 + c of each field's ring (3 * 2, ...)::
-
-        slot            0    1    2    3    4    5
-        row (s % 3)     0    0    1    1    2    2
-        copy c          0    1    0    1    0    1
-        start step s  0, 3 0, 3 1, 4 1, 4 2, 5 2, 5
-
-    At step 2 the transitions of step 0 are complete (k = 3, slots 0 and 1) and leave, so
-    step 3 may reuse row 0. If copy 1 is cut off at step 3, that step returns, oldest start
-    first and then by copy: copy 0 from step 1 (slot 2, k = 3), copy 1 from steps 1, 2 and 3
-    (slots 3, 5 and 1; k = 3, 2 and 1).
+    Each field's ring has n rows of N slots: the transition starting at step s in copy c is
+    slot (s % n) * N + c. With n = 3 and N = 2, step 0's transitions (slots 0, 1) are
+    complete at step 2 and leave, so step 3 reuses row 0; if copy 1 is cut off at step 3,
+    that step returns copy 0's from step 1 (slot 2, k = 3), then copy 1's from steps 1, 2
+    and 3 (slots 3, 5 and 1; k = 3, 2 and 1): oldest start first, then by copy.
     """
 
     def __init__(self, n_step: int, gamma: float, n_envs: int) -> None:
