@@ -1,21 +1,15 @@
 """Run a batch of training runs (modes x seeds) and install its outputs as one whole.
 
-Used by ``python train.py``. For ``output_dir`` (default ``problem2/results``) it writes:
-
-* ``agent_models/<mode>_seed<seed>_agent_{A,B}.pt``: TorchScript, mask included;
-  ``agent_models/<mode>_agent_{A,B}.pt``: the best seed of each mode (by the selection
-  evaluation on validation episodes); ``agent_models/manifest.json`` (the batch: modes,
-  seeds, map, every hyperparameter, code version, sha256 of every model);
-  ``agent_models/map.json``; ``agent_models/hyperparameters.json``;
-  ``agent_models/last_weights/<mode>_seed<seed>_agent_{A,B}.pt``: with ``--keep_best``,
-  the weights each run ended with (evaluated beside the selected ones).
-* ``training_logs/<mode>_seed<seed>.csv``: one row per periodic evaluation (appended as
-  measured); ``training_logs/<mode>_seed<seed>_selection.json``: the selection evaluation;
-  ``training_logs/training_curves.png``; ``training_logs/timing.json`` (wall times, the
-  only output that differs between identical reruns).
-
-Everything is written into ``<output_dir>/.staging.<pid>/`` and moved into place when the
-whole batch has finished (see ``OUTPUT_RULE`` in ``train_config.py`` for the full rule).
+Used by ``python train.py``. Into ``output_dir`` (default ``problem2/results``) it writes
+``agent_models/``: each run's TorchScript pair (mask inside), each mode's best pair (by the
+selection evaluation on validation episodes), ``manifest.json`` (the batch: modes, seeds,
+map, every hyperparameter, code version, sha256 of every model), ``map.json``,
+``hyperparameters.json`` and, with ``--keep_best``, ``last_weights/`` (the weights each run
+ended with); and ``training_logs/``: a CSV per run (one row per periodic evaluation,
+appended as measured), its selection evaluation, the curves and ``timing.json`` (wall
+times, the only output that differs between identical reruns). The README's table of
+outputs names every file. Everything is written into ``<output_dir>/.staging.<pid>/`` and
+moved into place when the whole batch has finished (``OUTPUT_RULE`` in ``train_config.py``).
 """
 
 from __future__ import annotations

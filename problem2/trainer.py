@@ -3,10 +3,8 @@
 Each agent has its own network (a Q head over 5 moves and a sigmoid message head) and
 learns from a shared replay of joint transitions with a Huber TD loss summed over both
 agents, target networks, a Double-DQN target and gradient clipping. The message is trained
-DIAL-style: at update time the message that arrived in the receiver's observation is
-recomputed by the sender's online network from the sender's previous observation (with
-noise on its logit), so the receiver's TD loss reaches the sender's message head. The
-ablation modes differ only in the input mask (:func:`apply_observation_mask`), used
+DIAL-style, through the receiver's TD loss (:meth:`~MultiAgentTrainer.splice_messages`).
+The ablation modes differ only in the input mask (:func:`apply_observation_mask`), used
 wherever a network sees an observation.
 
 :class:`MultiAgentTrainer` reads in DQN order: act (ε-greedy) → step → store → update
@@ -269,10 +267,9 @@ class MultiAgentTrainer:
         agent, :meth:`td_loss` adds each agent's own arrival term.)
 
         The arrival term pays about +Φ for every arrival and charges Φ for every departure,
-        so leaving and coming back earns nothing. (The ``arrival`` reward pays +2 only on an
-        agent's first arrival, which its observation does not show: an agent waiting on the
-        target then values stepping off and back on as if it paid again.) Being
-        potential-based, it leaves the optimal policy of the goal reward unchanged."""
+        so leaving and coming back earns nothing (the ``arrival`` reward's +2 depends on a
+        first-arrival flag the agent cannot see); being potential-based, it leaves the
+        optimal policy of the goal reward unchanged."""
         cfg = self.cfg
         if cfg.target_potential > 0 and cfg.potential_credit == "team":
             before = self.on_target(obs).sum(axis=1)
@@ -295,7 +292,7 @@ class MultiAgentTrainer:
         next_obs: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
     ) -> None:  # fmt: skip
         """Push the joint transitions that this step of the N episodes completes (see
-        :class:`n_step.NStepWindow`); with each, both agents' observations one step before
+        :class:`rollout.NStepWindow`); with each, both agents' observations one step before
         its start (DIAL). ``next_obs`` is the true next observation also where an episode
         was cut off (``truncated``). Into a buffer first filled by hand (the ten fields
         only) it pushes this step's one-step transitions instead."""

@@ -45,9 +45,8 @@ def team_rewards(on_target: np.ndarray, first_arrival: np.ndarray, reward_mode: 
     otherwise                         -0.1                   -0.1            -0.1
     ================================  =====================  ==============  ========
 
-    The trainer learns from ``goal`` plus its potential-based arrival term
-    (``MultiAgentTrainer.learning_rewards``), which pays every arrival and charges every
-    departure, so that what it pays is visible in the agent's own patch.
+    The trainer learns from ``goal`` plus the arrival term of
+    ``MultiAgentTrainer.learning_rewards``.
     """
     both = on_target[:, 0] & on_target[:, 1]
     if reward_mode == "per_step":
