@@ -454,14 +454,9 @@ def build_parser(cls: type = TrainConfig) -> argparse.ArgumentParser:
     )
     docs = field_docs(cls)
     for spec in dataclasses.fields(cls):
-        default = (
-            spec.default_factory()
-            if spec.default_factory is not dataclasses.MISSING
-            else spec.default
-        )
-        names = [f"--{spec.name}"] + (
-            [f"--{spec.name.replace('_', '-')}"] if "_" in spec.name else []
-        )
+        factory = spec.default_factory
+        default = spec.default if factory is dataclasses.MISSING else factory()
+        names = list(dict.fromkeys([f"--{spec.name}", f"--{spec.name.replace('_', '-')}"]))
         options: dict[str, Any] = {"dest": spec.name, "default": default}
         options["help"] = docs.get(spec.name, "") + (
             "" if spec.name == "output_dir" else " (default: %(default)s)"
