@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from analysis.episodes import recorded_episodes
 from grid_maps import TARGET, training_maps
 from models import MESSAGE_INDEX
 from multi_agent_env import MultiAgentEnv
@@ -271,7 +272,7 @@ def test_listening_and_signalling_losses_add_to_the_td_loss(tmp_path: Path) -> N
 
 def recorded_episodes(agents: tuple, epsilon: float) -> object:
     env = VectorMultiAgentEnv(30, seed=641, max_steps=20)
-    return run_episodes(env, memory_policy(agents, env, epsilon, seed=2), 30, seed=4, record=True)
+    return recorded_episodes(env, memory_policy(agents, env, epsilon, seed=2), 30, seed=4)
 
 
 def test_memory_states_replay_what_the_agents_acted_on() -> None:
