@@ -1,6 +1,6 @@
-"""Atomic file writes for problem 2: write under a temporary name in the target folder,
-then ``os.replace`` it onto the real name, so an interrupted run never leaves a
-half-written result behind."""
+"""Batch plumbing for problem 2: atomic file writes (under a temporary name in the target
+folder, then ``os.replace`` onto the real name, so an interrupted run never leaves a
+half-written result), stale temporaries, worker processes and the progress line."""
 
 from __future__ import annotations
 

@@ -1,21 +1,15 @@
 """Run a batch of training runs (modes x seeds) and install its outputs as one whole.
 
-Used by ``python train.py``. For ``output_dir`` (default ``problem2/results``) it writes:
-
-* ``agent_models/<mode>_seed<seed>_agent_{A,B}.pt``: TorchScript, mask included;
-  ``agent_models/<mode>_agent_{A,B}.pt``: the best seed of each mode (by the selection
-  evaluation on validation episodes); ``agent_models/manifest.json`` (the batch: modes,
-  seeds, map, every hyperparameter, code version, sha256 of every model);
-  ``agent_models/map.json``; ``agent_models/hyperparameters.json``;
-  ``agent_models/last_weights/<mode>_seed<seed>_agent_{A,B}.pt``: with ``--keep_best``,
-  the weights each run ended with (evaluated beside the selected ones).
-* ``training_logs/<mode>_seed<seed>.csv``: one row per periodic evaluation (appended as
-  measured); ``training_logs/<mode>_seed<seed>_selection.json``: the selection evaluation;
-  ``training_logs/training_curves.png``; ``training_logs/timing.json`` (wall times, the
-  only output that differs between identical reruns).
-
-Everything is written into ``<output_dir>/.staging.<pid>/`` and moved into place when the
-whole batch has finished (see ``OUTPUT_RULE`` in ``train_config.py`` for the full rule).
+Used by ``python train.py``. Into ``output_dir`` (default ``problem2/results``) it writes
+``agent_models/``: each run's TorchScript pair (mask inside), each mode's best pair (by the
+selection evaluation on validation episodes), ``manifest.json`` (the batch: modes, seeds,
+map, every hyperparameter, code version, sha256 of every model), ``map.json``,
+``hyperparameters.json`` and, with ``--keep_best``, ``last_weights/`` (the weights each run
+ended with); and ``training_logs/``: a CSV per run (one row per periodic evaluation,
+appended as measured), its selection evaluation, the curves and ``timing.json`` (wall
+times, the only output that differs between identical reruns). The README's table of
+outputs names every file. Everything is written into ``<output_dir>/.staging.<pid>/`` and
+moved into place when the whole batch has finished (``OUTPUT_RULE`` in ``train_config.py``).
 """
 
 from __future__ import annotations
@@ -41,10 +35,10 @@ from batch_io import (
     write_json_atomic,
 )
 from grid_maps import generate_map, save_map
-from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, VALIDATION_SEED, select_best
 from train_config import DEFAULT_OUTPUT_DIR, SettingError, TrainConfig
 from trainer import LAST_WEIGHTS, MultiAgentTrainer
+from vector_env import VectorMultiAgentEnv
 
 PROBLEM2 = Path(__file__).resolve().parent
 MANIFEST = "manifest.json"
@@ -156,12 +150,10 @@ def train_one(
         **{**cfg.to_dict(), "mode": mode, "seed": seed, "seeds": [], "workers": 1}
         | {"output_dir": str(models_dir.parent)}
     )
-    env = MultiAgentEnv(
-        grid_size=cfg.grid_shape(),
-        max_steps=cfg.max_steps,
-        seed=cfg.map_seed,
+    env = VectorMultiAgentEnv(  # the map: the trainer reads its grid, window and time limit
+        1, grid_size=cfg.grid_shape(), max_steps=cfg.max_steps, seed=cfg.map_seed,
         reward_mode=cfg.reward_mode,
-    )
+    )  # fmt: skip
     trainer = MultiAgentTrainer(env, run_cfg)
     # train() appends each log row to its CSV file as it is measured and saves the models.
     trainer.models_dir, trainer.logs_dir = models_dir, logs_dir
@@ -288,11 +280,8 @@ def manifest(
 def model_listing(files: dict[str, str], models_dir: Path) -> dict[str, dict[str, str]]:
     """The manifest's record of a model pair: its files (relative to ``models_dir``) and
     their sha256."""
-    return {"models": files, "sha256": {a: file_sha256(models_dir / f) for a, f in files.items()}}
-
-
-def file_sha256(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    digests = {a: hashlib.sha256((models_dir / f).read_bytes()) for a, f in files.items()}
+    return {"models": files, "sha256": {a: d.hexdigest() for a, d in digests.items()}}
 
 
 def code_version() -> str:

@@ -6,8 +6,6 @@ must be able to reach the target.
 
 from __future__ import annotations
 
-import json
-from collections import deque
 from functools import lru_cache
 from pathlib import Path
 
@@ -36,22 +34,21 @@ def check_grid_size(grid_size: tuple[int, int]) -> tuple[int, int]:
     return rows, cols
 
 
-def target_distances(grid: np.ndarray) -> np.ndarray:
-    """Shortest-path length (H, W) int64 from every cell to the target by breadth-first
-    search over 4-neighbour moves; -1 for obstacles and cells that cannot reach it."""
-    rows, cols = grid.shape
-    distances = np.full((rows, cols), -1, dtype=np.int64)
-    start = tuple(int(i) for i in np.argwhere(grid == TARGET)[0])
-    distances[start] = 0
-    frontier = deque([start])
-    while frontier:
-        row, col = frontier.popleft()
-        for d_row, d_col in ACTION_DELTAS[:4]:
-            r, c = row + d_row, col + d_col
-            if 0 <= r < rows and 0 <= c < cols and grid[r, c] != OBSTACLE and distances[r, c] < 0:
-                distances[r, c] = distances[row, col] + 1
-                frontier.append((r, c))
-    return distances
+def reaches_target(maps: np.ndarray) -> np.ndarray:
+    """Bool (M, H, W): the cells of maps (M, H, W) that reach the target by 4-neighbour
+    moves around obstacles (a flood fill from the target, all maps at once)."""
+    reached = maps == TARGET
+    open_cells = maps != OBSTACLE
+    while True:  # grow the set reachable from the target by one move per pass
+        grown = reached.copy()
+        grown[:, 1:] |= reached[:, :-1]
+        grown[:, :-1] |= reached[:, 1:]
+        grown[:, :, 1:] |= reached[:, :, :-1]
+        grown[:, :, :-1] |= reached[:, :, 1:]
+        grown &= open_cells
+        if np.array_equal(grown, reached):
+            return reached
+        reached = grown
 
 
 def check_grid(grid: np.ndarray | list) -> np.ndarray:
@@ -74,7 +71,7 @@ def check_grid(grid: np.ndarray | list) -> np.ndarray:
         raise ValueError(f"map must contain exactly one target (2), found {n_targets}")
     if (array == FREE).sum() < 2:
         raise ValueError("map needs at least two free cells to place the agents")
-    cut_off = np.argwhere((array == FREE) & (target_distances(array) < 0))
+    cut_off = np.argwhere((array == FREE) & ~reaches_target(array[None])[0])
     if len(cut_off):
         raise ValueError(
             f"map is not connected: free cells {cut_off[:5].tolist()} cannot reach the target"
@@ -92,23 +89,11 @@ def check_grid_stack(maps: np.ndarray, name: str = "maps") -> np.ndarray:
             f"{name} must be a non-empty integer stack of maps (M, H, W), got "
             f"{maps.dtype} {maps.shape}"
         )
-    reached = maps == TARGET
-    open_cells = maps != OBSTACLE
-    while True:  # grow the set reachable from the target by one move per pass
-        grown = reached.copy()
-        grown[:, 1:] |= reached[:, :-1]
-        grown[:, :-1] |= reached[:, 1:]
-        grown[:, :, 1:] |= reached[:, :, :-1]
-        grown[:, :, :-1] |= reached[:, :, 1:]
-        grown &= open_cells
-        if np.array_equal(grown, reached):
-            break
-        reached = grown
     well_formed = (
         ((maps == FREE) | (maps == OBSTACLE) | (maps == TARGET)).all(axis=(1, 2))
         & ((maps == TARGET).sum(axis=(1, 2)) == 1)
         & ((maps == FREE).sum(axis=(1, 2)) >= 2)
-        & (reached | ~open_cells).all(axis=(1, 2))
+        & (reaches_target(maps) | (maps == OBSTACLE)).all(axis=(1, 2))
     )
     if not well_formed.all():
         index = int(np.argmin(well_formed))
@@ -148,20 +133,6 @@ def generate_map(grid_size: tuple[int, int] = (10, 10), seed: int | None = None)
 def save_map(path: str | Path, grid: np.ndarray) -> None:
     """Write a validated map to ``path`` as JSON ``{"grid": [[...], ...]}`` (atomically)."""
     write_json_atomic(path, {"grid": check_grid(grid).tolist()})
-
-
-def load_map(path: str | Path) -> np.ndarray:
-    """Read a map written by :func:`save_map`; ValueError (naming the file) if it is invalid."""
-    try:
-        content = json.loads(Path(path).read_text())
-    except json.JSONDecodeError as error:
-        raise ValueError(f"{path}: not valid JSON ({error})") from error
-    if not isinstance(content, dict) or "grid" not in content:
-        raise ValueError(f"{path}: expected a JSON object with a 'grid' list of rows")
-    try:
-        return check_grid(content["grid"])
-    except ValueError as error:
-        raise ValueError(f"{path}: {error}") from error
 
 
 # ------------------------------------------------------------------ pools of generated maps
@@ -207,15 +178,6 @@ def training_maps(size: int, grid_size: tuple[int, int] = (10, 10)) -> np.ndarra
 def validation_maps(size: int, grid_size: tuple[int, int] = (10, 10)) -> np.ndarray:
     """The first ``size`` validation maps (size, H, W) int64 (read-only, cached)."""
     return _pool(VALIDATION_FIRST_SEED, size, tuple(grid_size))
-
-
-@lru_cache(maxsize=8)
-def held_out_maps(grid_size: tuple[int, int] = (10, 10)) -> np.ndarray:
-    """The 40 held-out test maps (40, H, W), in the order of ``HELD_OUT_MAP_SEEDS`` (read-only,
-    cached)."""
-    maps = np.stack([generate_map(tuple(grid_size), seed) for seed in HELD_OUT_MAP_SEEDS])
-    maps.flags.writeable = False
-    return maps
 
 
 # ------------------------------------------------ checks of what callers hand the env
@@ -272,26 +234,6 @@ def choose_maps(
     one_map = generate_map(grid_size, seed) if grid is None else check_grid(grid)
     one_map.flags.writeable = False
     return one_map[None], one_map
-
-
-def check_cell_array(positions: object, n_envs: int, name: str) -> np.ndarray:
-    """``positions`` as an (N, 2, 2) integer array of (row, col) cells (not yet checked
-    against the map), or ValueError."""
-    positions = np.asarray(positions)
-    if positions.shape != (n_envs, 2, 2) or positions.dtype.kind not in "iu":
-        raise ValueError(
-            f"{name} must be integers of shape ({n_envs}, 2, 2), "
-            f"got {positions.dtype} {positions.shape}"
-        )
-    return positions
-
-
-def check_action_values(actions: object) -> np.ndarray:
-    """``actions`` of any shape as an integer array in 0..4, or ValueError."""
-    actions = np.asarray(actions)
-    if actions.dtype.kind not in "iu" or (actions < 0).any() or (actions >= NUM_ACTIONS).any():
-        raise ValueError(f"actions must be integers in 0..{NUM_ACTIONS - 1}, got {actions}")
-    return actions
 
 
 def check_joint_actions(actions: np.ndarray, n_envs: int) -> np.ndarray:

@@ -10,7 +10,6 @@ from __future__ import annotations
 import copy
 import hashlib
 import io
-import numbers
 import warnings
 import zipfile
 from collections.abc import Iterator, Sequence
@@ -20,21 +19,28 @@ from pathlib import Path
 import numpy as np
 import torch
 from batch_io import temporary_path_for
+from grid_maps import positive_int
 from torch import nn
 
 OBSERVATION_DIM = 11  # the default 3 x 3 window: 9 cells, message, distance
 MESSAGE_INDEX = 9  # the partner's last message (w² for a w x w window)
 DISTANCE_INDEX = 10  # normalised distance between the agents (w² + 1)
-# The observation elements each ablation zeroes (for the 3 x 3 window; for a w x w window
-# the message and distance are elements w² and w² + 1, the same distance from the end).
-MASKED_INPUTS = {
+MASKED_INPUTS = {  # the observation elements each ablation zeroes (3 x 3 window)
     "independent": (MESSAGE_INDEX, DISTANCE_INDEX),  # patch only
     "comm": (DISTANCE_INDEX,),  # patch + message
     "full": (),  # patch + message + distance
 }
 
 
-def _mask(mode: str, obs_dim: int) -> np.ndarray:
+def observation_mask(mode: str, obs_dim: int = OBSERVATION_DIM) -> np.ndarray:
+    """The multiplicative mask (obs_dim,) float32, read-only, of ablation ``mode``, used
+    wherever a network sees an observation (acting, both TD passes, evaluation, inside
+    exported policies). For a w x w window (obs_dim w² + 2) the message and the distance
+    are elements w² and w² + 1. ValueError for an unknown mode."""
+    if mode not in MASKED_INPUTS:
+        raise ValueError(f"unknown mode {mode!r}; expected one of {sorted(MASKED_INPUTS)}")
+    if obs_dim < 3:
+        raise ValueError(f"obs_dim must be at least 3 (patch, message, distance), got {obs_dim}")
     mask = np.ones(obs_dim, dtype=np.float32)
     for index in MASKED_INPUTS[mode]:
         mask[index + obs_dim - OBSERVATION_DIM] = 0.0
@@ -42,29 +48,7 @@ def _mask(mode: str, obs_dim: int) -> np.ndarray:
     return mask
 
 
-# Multiplicative masks (11,) float32 of the three ablations, used wherever a network sees
-# an observation: acting, both TD passes, evaluation, and inside exported policies.
-OBSERVATION_MASKS = {mode: _mask(mode, OBSERVATION_DIM) for mode in MASKED_INPUTS}
-
-
-def observation_mask(mode: str, obs_dim: int = OBSERVATION_DIM) -> np.ndarray:
-    """The mask (obs_dim,) float32 of ablation ``mode``; ValueError for an unknown mode.
-
-    An observation of a w x w window has w² + 2 elements: the patch, then the message
-    (index w²) and the distance (index w² + 1); ``independent`` zeroes both, ``comm``
-    the distance, ``full`` nothing."""
-    if mode not in MASKED_INPUTS:
-        raise ValueError(f"unknown mode {mode!r}; expected one of {sorted(MASKED_INPUTS)}")
-    if obs_dim == OBSERVATION_DIM:
-        return OBSERVATION_MASKS[mode]
-    if obs_dim < 3:
-        raise ValueError(f"obs_dim must be at least 3 (patch, message, distance), got {obs_dim}")
-    return _mask(mode, obs_dim)
-
-
-def _check_size(name: str, value: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+OBSERVATION_MASKS = {mode: observation_mask(mode) for mode in MASKED_INPUTS}  # (11,) each
 
 
 class MessagingQNetwork(nn.Module):
@@ -74,7 +58,7 @@ class MessagingQNetwork(nn.Module):
     def __init__(self, input_dim: int, hidden_dim: int) -> None:
         super().__init__()
         for name, value in (("input_dim", input_dim), ("hidden_dim", hidden_dim)):
-            _check_size(name, value)
+            positive_int(value, name)
         self.hidden = nn.Linear(input_dim, hidden_dim)
         self.message_head = nn.Linear(hidden_dim, 1)
 
@@ -90,7 +74,7 @@ class AgentDQN(MessagingQNetwork):
 
     def __init__(self, input_dim: int = 11, hidden_dim: int = 64, num_actions: int = 5) -> None:
         super().__init__(input_dim, hidden_dim)
-        _check_size("num_actions", num_actions)
+        positive_int(num_actions, "num_actions")
         self.q_head = nn.Linear(hidden_dim, num_actions)
 
     def forward_with_logit(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -107,7 +91,7 @@ class DuelingDQN(MessagingQNetwork):
 
     def __init__(self, input_dim: int = 11, hidden_dim: int = 64, num_actions: int = 5) -> None:
         super().__init__(input_dim, hidden_dim)
-        _check_size("num_actions", num_actions)
+        positive_int(num_actions, "num_actions")
         self.value_head = nn.Linear(hidden_dim, 1)
         self.advantage_head = nn.Linear(hidden_dim, num_actions)
 
@@ -290,19 +274,3 @@ def _without_debug_sources(archive: bytes) -> bytes:
                 entry, content_id if entry.filename.endswith("serialization_id") else data
             )
     return output.getvalue()
-
-
-def load_policy(path: str | Path) -> torch.jit.ScriptModule:
-    """Load a policy written by :func:`export_policy` (needs only ``torch.jit.load``).
-
-    Raises FileNotFoundError if ``path`` does not exist, ValueError if it is not a
-    TorchScript module."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no policy file at {path}")
-    try:
-        with _torchscript_without_deprecation_warnings():
-            policy = torch.jit.load(str(path), map_location="cpu")
-    except Exception as error:  # torch raises RuntimeError or zipfile/pickle errors
-        raise ValueError(f"{path} is not a valid TorchScript policy: {error}") from error
-    return policy.eval()

@@ -4,10 +4,9 @@ Both agents must stand on the single target cell on the same step. Each agent se
 ``obs_window × obs_window`` patch around itself, the message its partner sent on the
 previous step and the normalised distance between the two agents.
 
-``vector_env.VectorMultiAgentEnv`` holds the only implementation of the dynamics,
-observations and rewards, stepping N copies of one map with NumPy arrays. ``MultiAgentEnv``
-is the course interface: a thin N = 1 view of it. Maps (generation, validation, JSON files)
-live in ``grid_maps.py``.
+``MultiAgentEnv`` is the course interface, a thin N = 1 view of
+``vector_env.VectorMultiAgentEnv`` (the dynamics, observations and rewards); maps are made
+in ``grid_maps.py``.
 
 Observation of one agent (length ``obs_window² + 2``, 11 for the default window of 3):
   0..8  the patch, row-major (0 free, 1 obstacle, 2 target, -1 off-grid; agents not drawn)
@@ -21,7 +20,7 @@ Positions are (row, col), row 0 at the top.
 from __future__ import annotations
 
 import numpy as np
-from grid_maps import NUM_ACTIONS
+from grid_maps import NUM_ACTIONS, OBSTACLE, TARGET
 from vector_env import VectorMultiAgentEnv
 
 
@@ -51,9 +50,24 @@ def _message(value: object, name: str) -> float:
     return number
 
 
+def render_state(
+    grid: np.ndarray, positions: np.ndarray, step: int, max_steps: int, messages
+) -> str:
+    """Text picture of one state: A, B (* when sharing a cell), T target, X obstacle, and
+    the step with the messages just sent."""
+    cells = np.array([".", "X", "T"])[np.where(grid == OBSTACLE, 1, np.where(grid == TARGET, 2, 0))]
+    (row_a, col_a), (row_b, col_b) = positions
+    cells[row_a, col_a] = "A"
+    cells[row_b, col_b] = "*" if (row_a, col_a) == (row_b, col_b) else "B"
+    picture = "\n".join(" ".join(row) for row in cells)
+    return (
+        f"{picture}\nstep {step}/{max_steps}  message A->B {float(messages[0]):.2f}  "
+        f"B->A {float(messages[1]):.2f}"
+    )
+
+
 class MultiAgentEnv:
-    """One environment with the course interface: an N = 1 view of VectorMultiAgentEnv
-    (see there for the rewards; the default is the assignment's table).
+    """One environment with the course interface: an N = 1 view of VectorMultiAgentEnv.
 
     Starter attributes, always in sync with the state: ``agent_positions`` (settable),
     ``comm_signals`` ([message from A, message from B]), ``step_count``, ``target_pos``.
@@ -100,10 +114,6 @@ class MultiAgentEnv:
     def target_pos(self) -> tuple[int, int]:
         return self._vector.target_position
 
-    @property
-    def target_position(self) -> tuple[int, int]:
-        return self._vector.target_position
-
     def reset(
         self, seed: int | None = None, positions: list | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -117,13 +127,9 @@ class MultiAgentEnv:
     ) -> tuple[tuple[np.ndarray, np.ndarray], float, bool]:
         """One joint step: ((obs_A, obs_B), team reward, done). ``done`` is True when both
         agents stand on the target or ``max_steps`` steps have passed. Messages are clipped
-        into [0, 1].
-
-        The team reward, one value per step (``vector_env.team_rewards``): +10 when both
-        agents stand on the target (the episode ends); with the default ``per_step`` +2 on
-        every step on which exactly one stands on it; with ``arrival`` +2 on the step on
-        which an agent first reaches it in the episode; -0.1 otherwise (``goal``, which the
-        trainer learns from with its potential-based arrival term, pays no +2)."""
+        into [0, 1]. The team reward (``vector_env.team_rewards``, one value per step): +10
+        when both stand on the target; by default +2 on every step on which exactly one
+        does; -0.1 otherwise."""
         actions = np.array([[_action(action_A, "action_A"), _action(action_B, "action_B")]])
         messages = np.array([[_message(comm_A, "comm_A"), _message(comm_B, "comm_B")]])
         obs, rewards, terminated, truncated, _ = self._vector.step(actions, messages)
@@ -151,4 +157,6 @@ class MultiAgentEnv:
         return [(int(r), int(c)) for r, c in self._vector.free_cells]
 
     def render(self) -> None:
-        self._vector.render(0)
+        """Print the grid with the agents, the step and the last messages."""
+        positions, messages = self._vector.positions[0], self._vector.messages[0]
+        print(render_state(self.grid, positions, self.step_count, self.max_steps, messages))

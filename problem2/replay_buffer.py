@@ -4,7 +4,7 @@
 priority^alpha from a sum-tree. A joint transition is (s_A, s_B, a_A, a_B, c_A, c_B, r,
 s'_A, s'_B, done) plus whatever extras the learner stores with it (the trainer: each
 agent's previous observation for DIAL, the n-step discount, the observations one step
-before s'). The observation size is whatever the first push brings.
+before s').
 """
 
 from __future__ import annotations
@@ -94,12 +94,11 @@ class ReplayBuffer:
 
     One storage: a float32 matrix (capacity, row width), a ring, each transition one row and
     each field a block of its columns (:attr:`layout`; A's and B's observations side by side,
-    so a learner can view both as one (2, B, D) block). The fields and their shapes are
-    fixed by the first push: the ten required and any extras it brings (e.g. DIAL's
-    previous observations), which every later push must bring too. One way in,
-    :meth:`push_batch`; one way to draw, :meth:`sample_rows` (a gather of whole rows);
-    :meth:`unpack` turns rows back into fields in their dtypes. The course's :meth:`push`
-    and :meth:`sample` are built on them.
+    so a learner can view both as one (2, B, D) block). The fields and their shapes (the
+    observation size too) are fixed by the first push, which every later push must match.
+    One way in, :meth:`push_batch`; one way to draw, :meth:`sample_rows` (a gather of whole
+    rows); :meth:`unpack` turns rows back into fields in their dtypes. The course's
+    :meth:`push` and :meth:`sample` are built on them.
     """
 
     def __init__(self, capacity: int = 10000, seed: int | None = None) -> None:

@@ -26,12 +26,7 @@ VALIDATION_SEED = 6_000_000  # other start cells, for checkpoint and seed select
 
 @dataclass
 class EpisodeResults:
-    """Per-episode outcomes (E,) and, if recorded, trajectories padded to max_steps T.
-
-    ``trajectories``: positions (E, T + 1, 2, 2) and observations (E, T + 1, 2, obs_dim)
-    before each step and after the last (held after the episode ends); actions (E, T, 2)
-    (-1 after the end), messages sent (E, T, 2) (NaN after), rewards (E, T) (0 after).
-    """
+    """Per-episode outcomes (E,); ``trajectories`` if recorded (``analysis.episodes``)."""
 
     returns: np.ndarray
     successes: np.ndarray
@@ -44,7 +39,6 @@ def run_episodes(
     policy_fn: PolicyFn,
     num_episodes: int,
     seed: int | None = None,
-    record: bool = False,
     start_positions: np.ndarray | None = None,
 ) -> EpisodeResults:
     """Run ``num_episodes`` episodes of ``policy_fn`` in rounds of ``env.n_envs``.
@@ -62,24 +56,20 @@ def run_episodes(
     if num_episodes < 1:
         raise ValueError(f"num_episodes must be positive, got {num_episodes}")
     rounds = [
-        _run_round(
-            env, policy_fn, seed if i == 0 else None, record, start_positions if i == 0 else None
-        )
+        _run_round(env, policy_fn, seed if i == 0 else None, start_positions if i == 0 else None)
         for i in range(math.ceil(num_episodes / env.n_envs))
     ]
     joined = {key: np.concatenate([r[key] for r in rounds])[:num_episodes] for key in rounds[0]}
-    outcomes = {key: joined.pop(key) for key in ("returns", "successes", "lengths")}
-    return EpisodeResults(**outcomes, trajectories=joined if record else None)
+    return EpisodeResults(**joined)
 
 
 def _run_round(
     env: VectorMultiAgentEnv,
     policy_fn: PolicyFn,
     seed: int | None,
-    record: bool,
     start_positions: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
-    n, horizon = env.n_envs, env.max_steps
+    n = env.n_envs
     obs = env.reset(seed=seed, positions=start_positions)
     active = np.ones(n, dtype=bool)
     result = {
@@ -87,21 +77,10 @@ def _run_round(
         "successes": np.zeros(n, dtype=bool),
         "lengths": np.zeros(n, dtype=np.int64),
     }
-    if record:
-        result |= {
-            "positions": np.zeros((n, horizon + 1, 2, 2), dtype=np.int64),
-            "observations": np.zeros((n, horizon + 1, 2, env.obs_dim), dtype=np.float32),
-            "actions": np.full((n, horizon, 2), -1, dtype=np.int64),
-            "messages": np.full((n, horizon, 2), np.nan, dtype=np.float32),
-            "rewards": np.zeros((n, horizon), dtype=np.float32),
-        }
-        result["positions"][:, 0], result["observations"][:, 0] = env.positions, obs
-    for t in range(horizon):
+    for _ in range(env.max_steps):
         actions, messages = policy_fn(obs, env.positions)
         obs, rewards, terminated, truncated, info = env.step(actions, messages)
         result["returns"] += np.where(active, rewards, 0.0)
-        if record:
-            _record_step(result, t, active, actions, messages, rewards, info)
         finished = active & (terminated | truncated)
         result["successes"][finished] = terminated[finished]
         result["lengths"][finished] = info["steps"][finished]
@@ -109,45 +88,6 @@ def _run_round(
         if not active.any():
             break
     return result
-
-
-def _record_step(
-    log: dict[str, np.ndarray],
-    t: int,
-    active: np.ndarray,
-    actions: np.ndarray,
-    messages: np.ndarray,
-    rewards: np.ndarray,
-    info: dict,
-) -> None:
-    rows = np.flatnonzero(active)
-    log["actions"][rows, t] = actions[rows]
-    log["messages"][rows, t] = messages[rows]
-    log["rewards"][rows, t] = rewards[rows]
-    for key, new in (("positions", info["positions"]), ("observations", info["final_obs"])):
-        log[key][:, t + 1] = log[key][:, t]  # hold the last state after the episode ends
-        log[key][rows, t + 1] = new[rows]
-
-
-def split_blocks(results: EpisodeResults, blocks: int) -> list[EpisodeResults]:
-    """Split ``results`` of ``blocks`` equal consecutive blocks of episodes into one
-    ``EpisodeResults`` per block."""
-
-    def part(array: np.ndarray) -> list[np.ndarray]:
-        return np.split(array, blocks)
-
-    fields = [part(results.returns), part(results.successes), part(results.lengths)]
-    trajectories = results.trajectories
-    split = {k: part(v) for k, v in trajectories.items()} if trajectories is not None else None
-    return [
-        EpisodeResults(
-            fields[0][k],
-            fields[1][k],
-            fields[2][k],
-            {key: v[k] for key, v in split.items()} if split is not None else None,
-        )  # fmt: skip
-        for k in range(blocks)
-    ]
 
 
 def summarize(results: EpisodeResults) -> dict[str, float | int | None]:
@@ -205,30 +145,19 @@ def evaluate_policy(
 class NStepWindow:
     """Turns the steps of N parallel episodes into n-step transitions.
 
-    The transition that starts at step t of an episode carries the discounted reward
-    R = r_t + γ r_{t+1} + ... + γ^(k-1) r_{t+k-1}, the observation s_{t+k} it bootstraps
-    from (``next_state_*``), the observation s_{t+k-1} one step before it (``last_state_*``,
-    whose sender's message s_{t+k} holds; only for n > 1, where it differs from the state),
-    and the discount γ^k, or 0 if the episode terminated within those k steps. k is n, or
-    fewer where the episode ends (terminal or cut off) before t + n. A transition leaves the
-    window at step t + k - 1; with n = 1 every step is its own transition at once.
+    The transition that starts at step t carries the discounted reward R = r_t + γ r_{t+1}
+    + ... + γ^(k-1) r_{t+k-1}, the observation s_{t+k} it bootstraps from (``next_state_*``),
+    for n > 1 the observation s_{t+k-1} before it (``last_state_*``, whose sender's message
+    s_{t+k} holds) and the discount γ^k, 0 if the episode terminated within those k steps;
+    k is n, or fewer where the episode ends (terminal or cut off) first. The caller gives
+    the fields known at the start (state, action, message, ...), each (N, ...); the window
+    adds ``reward``, ``next_state_A``/``_B``, ``done`` and ``discount``.
 
-    The caller gives the fields known when a transition starts (state, action, message,
-    ...), each (N, ...); the window adds ``reward``, ``next_state_A``/``_B``, ``done`` and
-    ``discount`` (and ``last_state_A``/``_B`` for n > 1).
-
-    Slot layout, e.g. n = 3 steps and N = 2 copies: the transition that starts at step s of
-    the run in copy c is slot (s % 3) * 2 + c of each field's ring (3 * 2, ...)::
-
-        slot            0    1    2    3    4    5
-        row (s % 3)     0    0    1    1    2    2
-        copy c          0    1    0    1    0    1
-        start step s  0, 3 0, 3 1, 4 1, 4 2, 5 2, 5
-
-    At step 2 the transitions of step 0 are complete (k = 3, slots 0 and 1) and leave, so
-    step 3 may reuse row 0. If copy 1 is cut off at step 3, that step returns, oldest start
-    first and then by copy: copy 0 from step 1 (slot 2, k = 3), copy 1 from steps 1, 2 and 3
-    (slots 3, 5 and 1; k = 3, 2 and 1).
+    Each field's ring has n rows of N slots: the transition starting at step s in copy c is
+    slot (s % n) * N + c. With n = 3 and N = 2, step 0's transitions (slots 0, 1) are
+    complete at step 2 and leave, so step 3 reuses row 0; if copy 1 is cut off at step 3,
+    that step returns copy 0's from step 1 (slot 2, k = 3), then copy 1's from steps 1, 2
+    and 3 (slots 3, 5 and 1; k = 3, 2 and 1): oldest start first, then by copy.
     """
 
     def __init__(self, n_step: int, gamma: float, n_envs: int) -> None:

@@ -1,6 +1,6 @@
 """Train the two agents of Problem 2: every ablation mode, several seeds, in parallel.
 
-    python train.py                      # 3 modes x 5 seeds on the default map (seed 641)
+    python train.py                      # 3 modes x 10 seeds on the default map (seed 641)
     python train.py --mode full --seeds 641 642 --total_steps 200000 --output_dir my_run
     python train.py --help               # every hyperparameter, with its meaning and range
 

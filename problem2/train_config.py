@@ -312,12 +312,6 @@ class TrainConfig:
             raise SettingError(names[0], problem, getattr(self, names[0]))
         return self
 
-    @staticmethod
-    def check_field(name: str, value: Any) -> None:
-        """Raise :class:`SettingError` if ``value`` breaks field ``name``'s rule (checked
-        alone: for a flag that is turned into other fields, e.g. a study's seed count)."""
-        check_value(name, value, FIELD_CHECKS[name])
-
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
@@ -456,18 +450,13 @@ def build_parser(cls: type = TrainConfig) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         description="Train the two agents (Problem 2).",
         epilog=OUTPUT_RULE,
-        formatter_class=_HelpFormatter,
+        formatter_class=argparse.RawDescriptionHelpFormatter,  # the epilog's paragraphs kept
     )
     docs = field_docs(cls)
     for spec in dataclasses.fields(cls):
-        default = (
-            spec.default_factory()
-            if spec.default_factory is not dataclasses.MISSING
-            else spec.default
-        )
-        names = [f"--{spec.name}"] + (
-            [f"--{spec.name.replace('_', '-')}"] if "_" in spec.name else []
-        )
+        factory = spec.default_factory
+        default = spec.default if factory is dataclasses.MISSING else factory()
+        names = list(dict.fromkeys([f"--{spec.name}", f"--{spec.name.replace('_', '-')}"]))
         options: dict[str, Any] = {"dest": spec.name, "default": default}
         options["help"] = docs.get(spec.name, "") + (
             "" if spec.name == "output_dir" else " (default: %(default)s)"
@@ -482,10 +471,6 @@ def build_parser(cls: type = TrainConfig) -> argparse.ArgumentParser:
             options["type"] = type(default)
         parser.add_argument(*names, **options)
     return parser
-
-
-class _HelpFormatter(argparse.RawDescriptionHelpFormatter):
-    """Keeps the epilog's paragraphs; wraps the flags' help as usual."""
 
 
 LIST_FLAGS: dict[str, tuple[Callable[[str], Any], str]] = {

@@ -3,10 +3,8 @@
 Each agent has its own network (a Q head over 5 moves and a sigmoid message head) and
 learns from a shared replay of joint transitions with a Huber TD loss summed over both
 agents, target networks, a Double-DQN target and gradient clipping. The message is trained
-DIAL-style: at update time the message that arrived in the receiver's observation is
-recomputed by the sender's online network from the sender's previous observation (with
-noise on its logit), so the receiver's TD loss reaches the sender's message head. The
-ablation modes differ only in the input mask (:func:`apply_observation_mask`), used
+DIAL-style, through the receiver's TD loss (:meth:`~MultiAgentTrainer.splice_messages`).
+The ablation modes differ only in the input mask (:func:`apply_observation_mask`), used
 wherever a network sees an observation.
 
 :class:`MultiAgentTrainer` reads in DQN order: act (ε-greedy) → step → store → update
@@ -22,14 +20,13 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from grid_maps import NUM_ACTIONS, TARGET, training_maps, validation_maps
 from models import PairedQNetworks, export_policy, observation_mask
-from multi_agent_env import MultiAgentEnv
 from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
 from rollout import (
     EVAL_EPSILON,
@@ -75,6 +72,16 @@ def config_from(args: Any) -> TrainConfig:
     settings.setdefault("output_dir", "results")  # like the skeleton
     settings.pop("grid_size", None)  # the trainer trains on env's grid
     return TrainConfig(**settings).validate()
+
+
+class MapSource(Protocol):
+    """What the trainer reads of its environment (a ``MultiAgentEnv`` or a one-map
+    ``VectorMultiAgentEnv``): the map (H, W), its size, the window and the time limit."""
+
+    grid: np.ndarray
+    grid_size: tuple[int, int]
+    obs_window: int
+    max_steps: int
 
 
 @dataclass
@@ -134,14 +141,15 @@ class MultiAgentTrainer:
     """Trains agents A and B of one ablation mode with one seed.
 
     Args:
-        env: the environment whose map, window and time limit training uses.
+        env: the environment (:class:`MapSource`) whose map, window and time limit training
+            uses.
         args: a :class:`TrainConfig`, or any namespace with some of its fields (the course
             skeleton's works); ``mode`` one of independent, comm, full (missing or ``all``
             means full); the run's seed is ``args.seed``; outputs go to
             ``<args.output_dir>/agent_models`` and ``/training_logs`` (default ``results``).
     """
 
-    def __init__(self, env: MultiAgentEnv, args: Any) -> None:
+    def __init__(self, env: MapSource, args: Any) -> None:
         cfg = self.cfg = config_from(args)
         if cfg.mode not in ("independent", "comm", "full"):
             raise ValueError(f"a trainer trains one mode, got mode={cfg.mode!r}")
@@ -261,10 +269,9 @@ class MultiAgentTrainer:
         agent, :meth:`td_loss` adds each agent's own arrival term.)
 
         The arrival term pays about +Φ for every arrival and charges Φ for every departure,
-        so leaving and coming back earns nothing. (The ``arrival`` reward pays +2 only on an
-        agent's first arrival, which its observation does not show: an agent waiting on the
-        target then values stepping off and back on as if it paid again.) Being
-        potential-based, it leaves the optimal policy of the goal reward unchanged."""
+        so leaving and coming back earns nothing (the ``arrival`` reward's +2 depends on a
+        first-arrival flag the agent cannot see); being potential-based, it leaves the
+        optimal policy of the goal reward unchanged."""
         cfg = self.cfg
         if cfg.target_potential > 0 and cfg.potential_credit == "team":
             before = self.on_target(obs).sum(axis=1)
@@ -287,7 +294,7 @@ class MultiAgentTrainer:
         next_obs: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
     ) -> None:  # fmt: skip
         """Push the joint transitions that this step of the N episodes completes (see
-        :class:`n_step.NStepWindow`); with each, both agents' observations one step before
+        :class:`rollout.NStepWindow`); with each, both agents' observations one step before
         its start (DIAL). ``next_obs`` is the true next observation also where an episode
         was cut off (``truncated``). Into a buffer first filled by hand (the ten fields
         only) it pushes this step's one-step transitions instead."""
@@ -587,20 +594,6 @@ class MultiAgentTrainer:
             return None
         pairs = [(c.greedy, c.eps) for c in self.checkpoints]
         return self.checkpoints[select_best(pairs, self.cfg.select_by)]
-
-    @property
-    def best_env_steps(self) -> int:
-        """Environment steps at the best checkpoint (0 before the first evaluation)."""
-        best = self.best_checkpoint()
-        return 0 if best is None else best.env_steps
-
-    @property
-    def best_selection(self) -> dict[str, float]:
-        """Validation success rates of the best checkpoint, ``greedy`` and ``eps``."""
-        best = self.best_checkpoint()
-        if best is None:
-            return {}
-        return {c: getattr(best, c)["success_rate"] for c in ("greedy", "eps")}
 
     @property
     def log_path(self) -> Path:

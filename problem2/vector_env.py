@@ -2,10 +2,9 @@
 
 ``VectorMultiAgentEnv`` holds the only implementation of the environment, stepping N copies
 with NumPy arrays (the trainer collects experience from 64 copies, the evaluator runs 1000
-test episodes together). ``multi_agent_env.MultiAgentEnv`` is the course interface: a thin
-N = 1 view of it. Observations, actions and rewards are described in ``multi_agent_env``.
-The copies share one map by default; they may also each hold their own (``grids``), or
-draw a new map from a pool at every episode start (``map_pool``).
+test episodes together); ``multi_agent_env`` describes observations and actions and holds
+the course interface. The copies share one map by default; they may also each hold their
+own (``grids``), or draw a new map from a pool at every episode start (``map_pool``).
 """
 
 from __future__ import annotations
@@ -16,8 +15,6 @@ from grid_maps import (
     FREE,
     OFF_GRID,
     TARGET,
-    check_action_values,
-    check_cell_array,
     check_choice,
     check_joint_actions,
     check_messages,
@@ -48,9 +45,8 @@ def team_rewards(on_target: np.ndarray, first_arrival: np.ndarray, reward_mode: 
     otherwise                         -0.1                   -0.1            -0.1
     ================================  =====================  ==============  ========
 
-    The trainer learns from ``goal`` plus its potential-based arrival term
-    (``MultiAgentTrainer.learning_rewards``), which pays every arrival and charges every
-    departure, so that what it pays is visible in the agent's own patch.
+    The trainer learns from ``goal`` plus the arrival term of
+    ``MultiAgentTrainer.learning_rewards``.
     """
     both = on_target[:, 0] & on_target[:, 1]
     if reward_mode == "per_step":
@@ -81,17 +77,9 @@ class VectorMultiAgentEnv:
     ``track_coverage`` adds ``info["newly_seen"]`` (N,): grid cells that entered either
     agent's patch for the first time in the episode on this step.
 
-    One team reward per step (never a per-agent sum):
-      * ``reward_mode="per_step"`` (default, the assignment's table): +10 when both agents
-        stand on the target (the episode terminates), +2 on every step on which exactly one
-        agent stands on it, -0.1 otherwise.
-      * ``reward_mode="arrival"`` (an earlier trained reward, kept for the reward study):
-        +10 when both stand on the target (terminates), +2 on a step on which an agent
-        reaches the target for the first time in the episode, -0.1 otherwise. Leaving and
-        coming back pays nothing; an agent placed on the target at the start has already
-        "arrived".
-      * ``reward_mode="goal"`` (what the trainer learns from, with its potential-based
-        arrival term): +10 when both stand on the target (terminates), -0.1 otherwise.
+    One team reward per step, never a per-agent sum: :func:`team_rewards` of
+    ``reward_mode`` (default ``per_step``, the assignment's table; an agent placed on the
+    target has already "arrived"). Both agents on the target terminates the episode;
     ``truncated`` is set when ``max_steps`` steps pass without termination.
     """
 
@@ -188,8 +176,14 @@ class VectorMultiAgentEnv:
         return self._copy_base.reshape((-1,) + (1,) * (rows.ndim - 1))
 
     def _check_cells(self, positions: object, name: str) -> np.ndarray:
-        """``positions`` (N, 2, 2) integer (row, col) cells inside the grid, not obstacles."""
-        positions = check_cell_array(positions, self.n_envs, name)
+        """Flat cells of ``positions`` (N, 2, 2), integer (row, col) cells inside the grid,
+        not obstacles; ValueError naming ``name`` otherwise."""
+        positions = np.asarray(positions)
+        if positions.shape != (self.n_envs, 2, 2) or positions.dtype.kind not in "iu":
+            raise ValueError(
+                f"{name} must be integers of shape ({self.n_envs}, 2, 2), "
+                f"got {positions.dtype} {positions.shape}"
+            )
         if not self.is_passable(positions[..., 0], positions[..., 1]).all():
             raise ValueError(
                 f"{name} must be cells inside the {self.grid_size[0]}x{self.grid_size[1]} grid "
@@ -268,10 +262,8 @@ class VectorMultiAgentEnv:
 
     def next_cells(self, rows: np.ndarray, cols: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """Cells (..., 2) reached from passable cells ``(rows, cols)`` by ``actions`` (same
-        shape, ints 0..4); a move into a wall or an obstacle stays in place."""
-        actions = check_action_values(actions)
-        if not self.is_passable(rows, cols).all():
-            raise ValueError("cells must be inside the grid and not obstacles")
+        shape, ints 0..4; both checked by the caller, ``MultiAgentEnv._apply_action``); a
+        move into a wall or an obstacle stays in place."""
         flat = self._to_flat(rows, cols) + self._bases_for(np.asarray(rows))
         return self._rows_cols(self._move(flat, actions))
 
@@ -307,18 +299,13 @@ class VectorMultiAgentEnv:
         """Begin new episodes in copies ``rows`` (their maps already drawn): place agents
         (random distinct free cells unless ``flat`` is given), clear messages, counters,
         arrival flags and, if tracked, the cells seen."""
-        if flat is None and len(self.grids) == 1:
-            n_cells = len(self._start_cells)
+        if flat is None:
+            maps = self._map_index[rows]
+            n_cells = self._free_counts[maps][:, None] - np.array([0, 1])  # A's, then B's
             # floor(uniform * n) is uniform on 0..n-1 and several times faster than
             # Generator.integers for small batches.
-            cells = (self._rng.random((len(rows), 2)) * (n_cells, n_cells - 1)).astype(np.int64)
-            cells[:, 1] += cells[:, 1] >= cells[:, 0]  # B uniform over the cells A left
-            flat = self._start_cells[cells]
-        elif flat is None:  # the same draw, with each copy's own number of free cells
-            maps = self._map_index[rows]
-            n_cells = self._free_counts[maps][:, None] - np.array([0, 1])
             cells = (self._rng.random((len(rows), 2)) * n_cells).astype(np.int64)
-            cells[:, 1] += cells[:, 1] >= cells[:, 0]
+            cells[:, 1] += cells[:, 1] >= cells[:, 0]  # B uniform over the cells A left
             flat = self._start_cells_by_map[maps[:, None], cells]
         self._flat[rows] = flat
         self._messages[rows] = 0.0
@@ -362,10 +349,6 @@ class VectorMultiAgentEnv:
         self._start_episodes(every_copy, flat)
         return self.current_observations()
 
-    def check_actions(self, actions: np.ndarray) -> np.ndarray:
-        """``actions`` as an (N, 2) integer array in 0..4, or ValueError."""
-        return check_joint_actions(actions, self.n_envs)
-
     def step(
         self, actions: np.ndarray, messages: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
@@ -381,7 +364,7 @@ class VectorMultiAgentEnv:
         and with ``track_coverage`` ``newly_seen`` (N,) int64.
         Without ``auto_reset``, stepping after a copy finished raises ValueError.
         """
-        actions = self.check_actions(actions)
+        actions = check_joint_actions(actions, self.n_envs)
         messages = check_messages(messages, self.n_envs)
         if self._finished.any():
             raise ValueError(
@@ -414,16 +397,3 @@ class VectorMultiAgentEnv:
             self._start_episodes(rows)
             obs[rows] = self._observe(self._flat[rows], self._messages[rows])
         return obs, rewards, terminated, truncated, info
-
-    def render(self, env_index: int = 0) -> None:
-        """Print copy ``env_index``: A, B (* when sharing a cell), T target, X obstacle."""
-        cells = np.array([".", "X", "T"])[self.grids[self._map_index[env_index]]]
-        (row_a, col_a), (row_b, col_b) = self.positions[env_index]
-        cells[row_a, col_a] = "A"
-        cells[row_b, col_b] = "*" if (row_a, col_a) == (row_b, col_b) else "B"
-        print("\n".join(" ".join(row) for row in cells))
-        message_a, message_b = self._messages[env_index]
-        print(
-            f"step {self._steps[env_index]}/{self.max_steps}  message A->B {message_a:.2f}  "
-            f"B->A {message_b:.2f}"
-        )

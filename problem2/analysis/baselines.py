@@ -16,6 +16,7 @@ prints a table and writes ``results/evaluation_results/baselines.json``.
 from __future__ import annotations
 
 import argparse
+from collections import deque
 from functools import partial
 from pathlib import Path
 
@@ -28,7 +29,6 @@ from grid_maps import (
     OBSTACLE,
     TARGET,
     generate_map,
-    target_distances,
 )
 from rollout import EVAL_SEED, PolicyFn, evaluate_policy
 from vector_env import REWARD_MODES, VectorMultiAgentEnv
@@ -46,6 +46,24 @@ def random_policy(seed: int | None = None) -> PolicyFn:
         return rng.integers(len(ACTION_DELTAS), size=(n, 2)), rng.random((n, 2))
 
     return act
+
+
+def target_distances(grid: np.ndarray) -> np.ndarray:
+    """Shortest-path length (H, W) int64 from every cell to the target by breadth-first
+    search over 4-neighbour moves; -1 for obstacles and cells that cannot reach it."""
+    rows, cols = grid.shape
+    distances = np.full((rows, cols), -1, dtype=np.int64)
+    start = tuple(int(i) for i in np.argwhere(grid == TARGET)[0])
+    distances[start] = 0
+    frontier = deque([start])
+    while frontier:
+        row, col = frontier.popleft()
+        for d_row, d_col in ACTION_DELTAS[:4]:
+            r, c = row + d_row, col + d_col
+            if 0 <= r < rows and 0 <= c < cols and grid[r, c] != OBSTACLE and distances[r, c] < 0:
+                distances[r, c] = distances[row, col] + 1
+                frontier.append((r, c))
+    return distances
 
 
 def shortest_path_actions(grid: np.ndarray) -> np.ndarray:

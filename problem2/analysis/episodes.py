@@ -1,6 +1,6 @@
 """Running trained policies for Problem 2's evaluation: greedy policies from two models,
-exploration with common random numbers, fixed start cells, per-episode summaries, the
-classification and the decomposition of failed episodes.
+exploration with common random numbers, fixed start cells, recorded episodes,
+per-episode summaries.
 
 Every policy here has the ``rollout.PolicyFn`` signature, so random, oracle and trained
 policies all run through :func:`rollout.run_episodes`.
@@ -8,12 +8,13 @@ policies all run through :func:`rollout.run_episodes`.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 from grid_maps import NUM_ACTIONS
-from rollout import EVAL_SEED, EpisodeResults, PolicyFn, summarize
+from rollout import EVAL_SEED, EpisodeResults, PolicyFn, run_episodes, summarize
 from vector_env import VectorMultiAgentEnv
 
 from analysis.failures import failure_shares
@@ -45,6 +46,67 @@ class EvaluationSetting:
     def target(self) -> tuple[int, int]:
         row, col = np.argwhere(np.asarray(self.grid) == 2)[0]
         return int(row), int(col)
+
+
+class RecordingEnv:
+    """A vectorised environment seen through :func:`rollout.run_episodes` that records
+    every round it plays (one round per ``reset``), each a dict of trajectories padded to
+    max_steps T: positions (N, T + 1, 2, 2) and observations (N, T + 1, 2, obs_dim) before
+    each step and after the last (held after the episode ends); actions (N, T, 2) (-1
+    after the end), messages sent (N, T, 2) (NaN after), rewards (N, T) (0 after)."""
+
+    def __init__(self, env: VectorMultiAgentEnv) -> None:
+        self.env, self.rounds = env, []
+        self.n_envs, self.max_steps, self.auto_reset = env.n_envs, env.max_steps, env.auto_reset
+
+    @property
+    def positions(self) -> np.ndarray:
+        return self.env.positions
+
+    def reset(self, seed: int | None = None, positions: np.ndarray | None = None) -> np.ndarray:
+        obs = self.env.reset(seed=seed, positions=positions)
+        n, horizon = self.n_envs, self.max_steps
+        self.t, self.active = 0, np.ones(n, dtype=bool)
+        self.rounds.append({
+            "positions": np.zeros((n, horizon + 1, 2, 2), dtype=np.int64),
+            "observations": np.zeros((n, horizon + 1, 2, self.env.obs_dim), dtype=np.float32),
+            "actions": np.full((n, horizon, 2), -1, dtype=np.int64),
+            "messages": np.full((n, horizon, 2), np.nan, dtype=np.float32),
+            "rewards": np.zeros((n, horizon), dtype=np.float32),
+        })  # fmt: skip
+        log = self.rounds[-1]
+        log["positions"][:, 0], log["observations"][:, 0] = self.env.positions, obs
+        return obs
+
+    def step(self, actions: np.ndarray, messages: np.ndarray) -> tuple:
+        """``env.step``, recording the step of every copy whose episode is still running."""
+        result = self.env.step(actions, messages)
+        _, rewards, terminated, truncated, info = result
+        log, t, rows = self.rounds[-1], self.t, np.flatnonzero(self.active)
+        log["actions"][rows, t] = actions[rows]
+        log["messages"][rows, t] = messages[rows]
+        log["rewards"][rows, t] = rewards[rows]
+        for key, new in (("positions", info["positions"]), ("observations", info["final_obs"])):
+            log[key][:, t + 1] = log[key][:, t]  # hold the last state after the episode ends
+            log[key][rows, t + 1] = new[rows]
+        self.active &= ~(terminated | truncated)
+        self.t += 1
+        return result
+
+
+def recorded_episodes(
+    env: VectorMultiAgentEnv,
+    policy_fn: PolicyFn,
+    num_episodes: int,
+    seed: int | None = None,
+    start_positions: np.ndarray | None = None,
+) -> EpisodeResults:
+    """:func:`rollout.run_episodes` with the trajectories of :class:`RecordingEnv` (E, ...)."""
+    recorder = RecordingEnv(env)
+    results = run_episodes(recorder, policy_fn, num_episodes, seed, start_positions)
+    rounds = recorder.rounds
+    joined = {key: np.concatenate([r[key] for r in rounds])[:num_episodes] for key in rounds[0]}
+    return dataclasses.replace(results, trajectories=joined)
 
 
 def model_policy(

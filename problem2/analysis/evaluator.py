@@ -9,15 +9,14 @@ from typing import Any
 
 import numpy as np
 import torch
-from grid_maps import ACTION_NAMES, OBSTACLE, TARGET, generate_map
-from multi_agent_env import MultiAgentEnv
+from grid_maps import ACTION_NAMES, generate_map
+from multi_agent_env import MultiAgentEnv, render_state
 from rollout import (
     EVAL_EPSILON,
     EVAL_SEED,
     EpisodeResults,
     PolicyFn,
     run_episodes,
-    split_blocks,
     summarize,
 )
 from vector_env import VectorMultiAgentEnv
@@ -29,6 +28,7 @@ from analysis.episodes import (
     episode_summary,
     explore_by_step,
     model_policy,
+    recorded_episodes,
     start_positions,
 )
 from analysis.interventions import (
@@ -44,6 +44,27 @@ from analysis.runs import Experiment, check_policy, load_model_pair, model_paths
 
 GENERALIZATION_MAP_SEEDS = tuple(range(10))
 PolicyFactory = Callable[[np.ndarray], PolicyFn]  # map (H, W) -> greedy policy on that map
+
+
+def split_blocks(results: EpisodeResults, blocks: int) -> list[EpisodeResults]:
+    """Split ``results`` of ``blocks`` equal consecutive blocks of episodes into one
+    ``EpisodeResults`` per block."""
+
+    def part(array: np.ndarray) -> list[np.ndarray]:
+        return np.split(array, blocks)
+
+    fields = [part(results.returns), part(results.successes), part(results.lengths)]
+    trajectories = results.trajectories
+    split = {k: part(v) for k, v in trajectories.items()} if trajectories is not None else None
+    return [
+        EpisodeResults(
+            fields[0][k],
+            fields[1][k],
+            fields[2][k],
+            {key: v[k] for key, v in split.items()} if split is not None else None,
+        )  # fmt: skip
+        for k in range(blocks)
+    ]
 
 
 class MultiAgentEvaluator:
@@ -126,7 +147,8 @@ class MultiAgentEvaluator:
             rates = np.repeat([epsilons[k] for k in group], num_episodes)
             policy = explore_by_step(policy, env, rates, num_episodes, self.seed)
             both = np.tile(starts, (len(group), 1, 1))
-            run = run_episodes(env, policy, len(both), record=record, start_positions=both)
+            run_all = recorded_episodes if record else run_episodes
+            run = run_all(env, policy, len(both), start_positions=both)
             results += split_blocks(run, len(group))
         return results
 
@@ -158,7 +180,7 @@ class MultiAgentEvaluator:
         )
         seed = self.seed + 10_000 + self._episodes_run
         self._episodes_run += 1
-        run = run_episodes(env, policy, 1, seed=seed, record=True)
+        run = recorded_episodes(env, policy, 1, seed=seed)
         steps, trajectories = int(run.lengths[0]), run.trajectories
         positions = trajectories["positions"][0, : steps + 1]
         actions, messages = trajectories["actions"][0, :steps], trajectories["messages"][0, :steps]
@@ -348,19 +370,3 @@ def block_policy(factories: list[PolicyFactory], grid: np.ndarray, block_size: i
         return np.concatenate([a for a, _ in outputs]), np.concatenate([m for _, m in outputs])
 
     return act
-
-
-def render_state(
-    grid: np.ndarray, positions: np.ndarray, step: int, max_steps: int, messages
-) -> str:
-    """Text picture of one state: A, B (* when sharing a cell), T target, X obstacle, and
-    the step with the messages just sent."""
-    cells = np.array([".", "X", "T"])[np.where(grid == OBSTACLE, 1, np.where(grid == TARGET, 2, 0))]
-    (row_a, col_a), (row_b, col_b) = positions
-    cells[row_a, col_a] = "A"
-    cells[row_b, col_b] = "*" if (row_a, col_a) == (row_b, col_b) else "B"
-    picture = "\n".join(" ".join(row) for row in cells)
-    return (
-        f"{picture}\nstep {step}/{max_steps}  message A->B {float(messages[0]):.2f}  "
-        f"B->A {float(messages[1]):.2f}"
-    )

@@ -8,13 +8,23 @@ run through :func:`held_out_success`.
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import lru_cache
 
 import numpy as np
-from grid_maps import HELD_OUT_MAP_SEEDS, held_out_maps
+from grid_maps import HELD_OUT_MAP_SEEDS, generate_map
 from rollout import EVAL_SEED, PolicyFn, evaluate_policy
 from vector_env import VectorMultiAgentEnv
 
 from analysis.baselines import POLICIES
+
+
+@lru_cache(maxsize=8)
+def held_out_maps(grid_size: tuple[int, int] = (10, 10)) -> np.ndarray:
+    """The 40 held-out test maps (40, H, W), in the order of ``HELD_OUT_MAP_SEEDS`` (read-only,
+    cached)."""
+    maps = np.stack([generate_map(tuple(grid_size), seed) for seed in HELD_OUT_MAP_SEEDS])
+    maps.flags.writeable = False
+    return maps
 
 
 def held_out_success(

@@ -21,8 +21,10 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from grid_maps import NUM_ACTIONS, TARGET, target_distances
+from grid_maps import NUM_ACTIONS, TARGET
 from rollout import EpisodeResults
+
+from analysis.baselines import target_distances
 
 BIN_COUNTS = (2, 10)
 DISTANCE_CAP = 10  # distances of 10 steps and more share one bin

@@ -5,8 +5,10 @@ episodes (``rollout.EpisodeResults`` with trajectories)."""
 from __future__ import annotations
 
 import numpy as np
-from grid_maps import TARGET, target_distances
+from grid_maps import TARGET
 from rollout import EpisodeResults
+
+from analysis.baselines import target_distances
 
 AGENTS = ("A", "B")
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)

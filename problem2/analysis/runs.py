@@ -1,6 +1,6 @@
 """Finding and loading what training produced: the experiments under a results root, their
 maps and settings, and the exported TorchScript model pairs (loaded with
-``torch.jit.load`` only, through :func:`models.load_policy`).
+``torch.jit.load`` only, through :func:`load_policy`).
 
 Layout of an experiment root (written by ``train.py``):
 ``agent_models/<mode>_seed<seed>_agent_{A,B}.pt``, ``agent_models/<mode>_agent_{A,B}.pt``
@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from grid_maps import DEFAULT_MAP_SEED, generate_map, load_map
-from models import OBSERVATION_DIM, load_policy
+from grid_maps import DEFAULT_MAP_SEED, check_grid, generate_map
+from models import OBSERVATION_DIM, _torchscript_without_deprecation_warnings
 
 PROBLEM2 = Path(__file__).resolve().parent.parent
 DEFAULT_ROOT = PROBLEM2 / "results"
@@ -42,6 +42,37 @@ DEFAULT_SETTINGS = {
     "reward_mode": "goal",
     "comm_learning": "dial",
 }
+
+
+def load_map(path: str | Path) -> np.ndarray:
+    """Read a map written by ``grid_maps.save_map``; ValueError (naming the file) if it is
+    invalid."""
+    try:
+        content = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path}: not valid JSON ({error})") from error
+    if not isinstance(content, dict) or "grid" not in content:
+        raise ValueError(f"{path}: expected a JSON object with a 'grid' list of rows")
+    try:
+        return check_grid(content["grid"])
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from error
+
+
+def load_policy(path: str | Path) -> torch.jit.ScriptModule:
+    """Load a policy written by ``models.export_policy`` (needs only ``torch.jit.load``).
+
+    Raises FileNotFoundError if ``path`` does not exist, ValueError if it is not a
+    TorchScript module."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no policy file at {path}")
+    try:
+        with _torchscript_without_deprecation_warnings():
+            policy = torch.jit.load(str(path), map_location="cpu")
+    except Exception as error:  # torch raises RuntimeError or zipfile/pickle errors
+        raise ValueError(f"{path} is not a valid TorchScript policy: {error}") from error
+    return policy.eval()
 
 
 @dataclass

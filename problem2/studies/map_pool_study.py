@@ -53,7 +53,7 @@ from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED
 from train_config import MODES, SettingError, TrainConfig, available_cores, check_value, int_in
 from trainer import MultiAgentTrainer
 
-from studies.staging import staged_output, write_timing
+from studies.staging import best_env_steps, best_selection, check_field, staged_output, write_timing
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "map_pool"
 RECIPE: dict[str, Any] = dict(
@@ -105,8 +105,8 @@ def train_and_test(
     return {
         "mode": mode,
         "seed": seed,
-        "selected_env_steps": trainer.best_env_steps,
-        "validation_success": {k: trainer.best_selection[k] for k in CONDITIONS},
+        "selected_env_steps": best_env_steps(trainer),
+        "validation_success": {k: best_selection(trainer)[k] for k in CONDITIONS},
         "held_out_per_map": rates,
         "held_out_mean": {label: float(np.mean(values)) for label, values in rates.items()},
         "seconds": {"training": trained, "total": time.perf_counter() - start},
@@ -262,8 +262,8 @@ def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]
         check_value("episodes_per_map", args.episodes_per_map, int_in(1, 100_000))
         check_value("map_pool", args.map_pool, STUDY_POOL_SIZES)
         # Flags turned into other fields are checked by their field's rule alone.
-        TrainConfig.check_field("num_seeds", args.num_seeds)  # the seeds 0..num_seeds-1
-        TrainConfig.check_field("output_dir", str(args.output_dir))  # the study's own folder
+        check_field("num_seeds", args.num_seeds)  # the seeds 0..num_seeds-1
+        check_field("output_dir", str(args.output_dir))  # the study's own folder
         cfg = TrainConfig(**settings).validate()
     except SettingError as error:
         parser.error(error.usage())

@@ -25,12 +25,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from analysis.baselines import target_distances
 from analysis.evaluator import MultiAgentEvaluator
 from analysis.failures import arrivals
 from analysis.runs import Experiment, load_model_pair, read_experiment
 from analysis.stats import seed_statistics
 from batch_io import write_json_atomic
-from grid_maps import DEFAULT_MAP_SEED, TARGET, generate_map, target_distances
+from grid_maps import DEFAULT_MAP_SEED, TARGET, generate_map
 from rollout import EVAL_EPSILON, EVAL_SEED
 from vector_env import VectorMultiAgentEnv
 

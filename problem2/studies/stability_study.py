@@ -25,13 +25,12 @@ from typing import Any
 import numpy as np
 import torch
 import train
-from analysis.episodes import EvaluationSetting, model_policy
+from analysis.episodes import EvaluationSetting, model_policy, recorded_episodes
 from analysis.failures import arrivals
-from analysis.runs import load_model_pair
+from analysis.runs import load_map, load_model_pair
 from batch_io import write_json_atomic
 from experiments import read_csv
-from grid_maps import load_map
-from rollout import VALIDATION_SEED, run_episodes
+from rollout import VALIDATION_SEED
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "stability"
 SEEDS = (100, 101, 102, 103)  # training seeds: never the reported 641-650
@@ -70,8 +69,8 @@ def diagnose(models_dir: Path, mode: str, seed: int) -> dict[str, float | None]:
     target = setting.target
     models = load_model_pair(models_dir, mode, seed)
     env = setting.make_env(100)
-    results = run_episodes(
-        env, model_policy(*models), DIAGNOSIS_EPISODES, seed=VALIDATION_SEED, record=True
+    results = recorded_episodes(
+        env, model_policy(*models), DIAGNOSIS_EPISODES, seed=VALIDATION_SEED
     )
     trajectories = results.trajectories
     taken = trajectories["actions"] >= 0  # (E, T, 2)

@@ -1,6 +1,7 @@
-"""A study's output folder written whole: everything goes into a staging folder beside it,
-which replaces the folder only when the block succeeds (an interrupted study leaves the
-previous results, never half of new ones)."""
+"""What the studies share: an output folder written whole (everything goes into a staging
+folder beside it, which replaces the folder only when the block succeeds: an interrupted
+study leaves the previous results, never half of new ones), the timing file, a study
+flag checked by a TrainConfig field's rule, and the checkpoint a trainer selected."""
 
 from __future__ import annotations
 
@@ -12,6 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from batch_io import remove_stale_temporaries, write_json_atomic
+from train_config import FIELD_CHECKS, check_value
+from trainer import MultiAgentTrainer
 
 
 @contextmanager
@@ -46,3 +49,23 @@ def write_timing(path: Path, runs: list[dict[str, Any]]) -> None:
         for r in runs
     }
     write_json_atomic(path, timing)
+
+
+def check_field(name: str, value: Any) -> None:
+    """Raise ``SettingError`` if ``value`` breaks TrainConfig field ``name``'s rule (checked
+    alone: for a flag that is turned into other fields, e.g. a study's seed count)."""
+    check_value(name, value, FIELD_CHECKS[name])
+
+
+def best_env_steps(trainer: MultiAgentTrainer) -> int:
+    """Environment steps at the trainer's best checkpoint (0 before the first evaluation)."""
+    best = trainer.best_checkpoint()
+    return 0 if best is None else best.env_steps
+
+
+def best_selection(trainer: MultiAgentTrainer) -> dict[str, float]:
+    """Validation success rates of the trainer's best checkpoint, ``greedy`` and ``eps``."""
+    best = trainer.best_checkpoint()
+    if best is None:
+        return {}
+    return {c: getattr(best, c)["success_rate"] for c in ("greedy", "eps")}

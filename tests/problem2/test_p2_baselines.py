@@ -20,8 +20,10 @@ from analysis.baselines import (
     oracle_policy,
     random_policy,
     shortest_path_actions,
+    target_distances,
 )
-from grid_maps import ACTION_DELTAS, generate_map, target_distances
+from analysis.episodes import recorded_episodes
+from grid_maps import ACTION_DELTAS, generate_map
 from rollout import evaluate_policy, run_episodes
 from vector_env import VectorMultiAgentEnv
 
@@ -30,7 +32,7 @@ from vector_env import VectorMultiAgentEnv
 def test_oracle_always_succeeds_along_shortest_paths(map_seed: int) -> None:
     grid = generate_map((10, 10), map_seed)
     env = VectorMultiAgentEnv(200, grid=grid)
-    results = run_episodes(env, oracle_policy(grid), 200, seed=1, record=True)
+    results = recorded_episodes(env, oracle_policy(grid), 200, seed=1)
     assert results.successes.all()
     distances = target_distances(grid)
     start = results.trajectories["positions"][:, 0]
@@ -60,8 +62,8 @@ def test_shortest_path_actions_move_one_step_closer() -> None:
 
 def test_episode_loop_is_reproducible_and_counts_exactly() -> None:
     env = VectorMultiAgentEnv(10, seed=641)
-    first = run_episodes(env, random_policy(5), 25, seed=3, record=True)
-    again = run_episodes(env, random_policy(5), 25, seed=3, record=True)
+    first = recorded_episodes(env, random_policy(5), 25, seed=3)
+    again = recorded_episodes(env, random_policy(5), 25, seed=3)
     assert len(first.returns) == 25  # three rounds of ten, the last one cut
     assert np.array_equal(first.returns, again.returns)
     assert np.array_equal(first.trajectories["positions"], again.trajectories["positions"])
@@ -71,7 +73,7 @@ def test_episode_loop_is_reproducible_and_counts_exactly() -> None:
 def test_recorded_trajectories_are_consistent() -> None:
     grid = generate_map((10, 10), 0)
     env = VectorMultiAgentEnv(20, grid=grid)
-    results = run_episodes(env, random_policy(1), 20, seed=0, record=True)
+    results = recorded_episodes(env, random_policy(1), 20, seed=0)
     log = results.trajectories
     assert log["positions"].shape == (20, 51, 2, 2)
     assert log["observations"].shape == (20, 51, 2, 11)

@@ -8,7 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from grid_maps import generate_map, load_map, save_map, target_distances
+from analysis.baselines import target_distances
+from analysis.runs import load_map
+from grid_maps import generate_map, save_map
 from multi_agent_env import MultiAgentEnv
 from vector_env import VectorMultiAgentEnv
 

@@ -22,7 +22,7 @@ from analysis.evaluator import experiment_evaluator
 from analysis.generalization import models_on_maps
 from analysis.information import MEASURES
 from analysis.interventions import INTERVENTIONS
-from analysis.runs import best_seed, discover_experiments, sha256_of
+from analysis.runs import best_seed, discover_experiments, load_map, sha256_of
 from evaluate import (
     MultiAgentEvaluator,
     create_evaluation_report,
@@ -30,7 +30,6 @@ from evaluate import (
     main,
     parse_args,
 )
-from grid_maps import load_map
 from models import AgentDQN, DuelingDQN, export_policy
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, run_episodes

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from analysis.runs import load_policy
 from grid_maps import TARGET
-from models import load_policy
 from multi_agent_env import MultiAgentEnv
 from train_config import TrainConfig
 

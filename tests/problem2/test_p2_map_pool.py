@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from analysis.held_out import held_out_maps
 from grid_maps import (
     DEFAULT_MAP_SEED,
     HELD_OUT_MAP_SEEDS,
     generate_map,
-    held_out_maps,
     training_maps,
     validation_maps,
 )

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from analysis.episodes import recorded_episodes
 from grid_maps import TARGET, training_maps
 from models import MESSAGE_INDEX
 from multi_agent_env import MultiAgentEnv
@@ -269,15 +270,15 @@ def test_listening_and_signalling_losses_add_to_the_td_loss(tmp_path: Path) -> N
     assert loss_with(Levers()) == base
 
 
-def recorded_episodes(agents: tuple, epsilon: float) -> object:
+def episodes_of(agents: tuple, epsilon: float) -> object:
     env = VectorMultiAgentEnv(30, seed=641, max_steps=20)
-    return run_episodes(env, memory_policy(agents, env, epsilon, seed=2), 30, seed=4, record=True)
+    return recorded_episodes(env, memory_policy(agents, env, epsilon, seed=2), 30, seed=4)
 
 
 def test_memory_states_replay_what_the_agents_acted_on() -> None:
     torch.manual_seed(0)
     agents = (RecurrentQNetwork("full", 16), RecurrentQNetwork("full", 16))
-    recorded = recorded_episodes(agents, 0.0)
+    recorded = episodes_of(agents, 0.0)
     observations, actions = recorded.trajectories["observations"], recorded.trajectories["actions"]
     valid = actions[..., 0] >= 0
     for i, agent in enumerate(agents):
@@ -309,8 +310,8 @@ class MessageFollower(torch.nn.Module):
 def test_memory_cic_is_zero_for_a_deaf_receiver_and_near_0_89_bits_for_a_follower() -> None:
     follower = (MessageFollower(hears=True), MessageFollower(hears=True))
     deaf = (MessageFollower(hears=False), MessageFollower(hears=False))
-    heard = memory_cic(follower, recorded_episodes(follower, 0.0), 0.05)
-    unheard = memory_cic(deaf, recorded_episodes(deaf, 0.0), 0.05)
+    heard = memory_cic(follower, episodes_of(follower, 0.0), 0.05)
+    unheard = memory_cic(deaf, episodes_of(deaf, 0.0), 0.05)
     assert unheard == pytest.approx({"K2": 0.0, "K10": 0.0}, abs=1e-12)
     # Messages 0 and 1 about equally often; at eps 0.05 the follower's two policies put 0.96
     # on one move each: CIC = 0.96 log2(0.96 / 0.485) + 0.01 log2(0.01 / 0.485) = 0.890 bits.

@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from analysis.runs import load_policy
 from models import (
     OBSERVATION_MASKS,
     AgentDQN,
     DuelingDQN,
     export_policy,
-    load_policy,
     observation_mask,
 )
 

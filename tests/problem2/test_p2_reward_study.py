@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import torch
 from analysis.baselines import random_policy
+from analysis.episodes import recorded_episodes
 from analysis.runs import sha256_of
 from analysis.stats import seed_statistics
 from grid_maps import generate_map, save_map
 from models import AgentDQN, export_policy
-from rollout import run_episodes
 from studies import joint_dp, reward_study
 from vector_env import VectorMultiAgentEnv
 
@@ -185,7 +185,7 @@ def test_rewards_and_moves_agree_with_the_environment(reward):
     """Random episodes on map 641: the env's returns equal the ones re-computed from the
     recorded positions, and the DP's move table reproduces every recorded move."""
     env = VectorMultiAgentEnv(200, seed=641, reward_mode=reward)
-    results = run_episodes(env, random_policy(seed=5), 400, seed=11, record=True)
+    results = recorded_episodes(env, random_policy(seed=5), 400, seed=11)
     positions, actions = results.trajectories["positions"], results.trajectories["actions"]
     recomputed = joint_dp.returns_from_positions(
         positions, results.lengths, env.target_position, reward

@@ -10,9 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from models import export_policy, load_policy, observation_mask
+from analysis.runs import load_policy
+from models import export_policy, observation_mask
 from multi_agent_env import MultiAgentEnv
 from rollout import VALIDATION_SEED, select_best
+from studies.staging import best_env_steps, best_selection
 from train_config import TrainConfig
 
 from tests.conftest import load_problem_module, weights_of
@@ -228,8 +230,8 @@ def test_training_ends_with_the_checkpoint_that_select_by_picks_from_the_log(
         }
 
     best = log[select_best([(summary(r, "greedy"), summary(r, "eps")) for r in log], select_by)]
-    assert trainer.best_env_steps == best["env_steps"]
-    assert trainer.best_selection == {
+    assert best_env_steps(trainer) == best["env_steps"]
+    assert best_selection(trainer) == {
         "greedy": best["eval_success_greedy"], "eps": best["eval_success_eps"]
     }  # fmt: skip
     # The weights the run ends with are that checkpoint's: they replay its validation result.

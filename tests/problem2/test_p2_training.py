@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 from analysis.baselines import random_policy
-from grid_maps import load_map
+from analysis.runs import load_map
 from models import AgentDQN, DuelingDQN, PairedQNetworks
 from multi_agent_env import MultiAgentEnv
 from rollout import evaluate_policy

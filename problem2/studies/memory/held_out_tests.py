@@ -12,9 +12,11 @@ from typing import Any
 import numpy as np
 import torch
 from analysis.baselines import POLICIES
+from analysis.episodes import recorded_episodes
+from analysis.held_out import held_out_maps
 from analysis.information import BIN_COUNTS, causal_influence, message_bins
 from analysis.interventions import intervene, intervention_table, real_steps
-from grid_maps import HELD_OUT_MAP_SEEDS, held_out_maps
+from grid_maps import HELD_OUT_MAP_SEEDS
 from models import DISTANCE_INDEX, MESSAGE_INDEX
 from rollout import EVAL_EPSILON, EVAL_SEED, EpisodeResults, run_episodes
 from vector_env import VectorMultiAgentEnv
@@ -130,7 +132,7 @@ def held_out_results(agents: tuple, mode: str, episodes: int, max_steps: int) ->
         env = VectorMultiAgentEnv(episodes, grid=grid, max_steps=max_steps)
         for label, epsilon in CONDITIONS.items():
             policy = functools.partial(memory_policy, agents, env, epsilon, EVAL_SEED + map_seed)
-            real = run_episodes(env, policy(), episodes, seed=EVAL_SEED, record=True)
+            real = recorded_episodes(env, policy(), episodes, seed=EVAL_SEED)
             success[label].append(float(real.successes.mean()))
             if label == "greedy" and cic:
                 for key, value in memory_cic(agents, real, EVAL_EPSILON, seed=map_seed).items():
@@ -166,7 +168,7 @@ def beacon_homing(episodes: int, max_steps: int) -> list[float]:
         env = VectorMultiAgentEnv(episodes, grid=grid, max_steps=max_steps)
         policy = POLICIES["beacon_explorer"](grid, EVAL_SEED + map_seed)
         counts += homing_counts(
-            run_episodes(env, policy, episodes, seed=EVAL_SEED, record=True), env.target_position
+            recorded_episodes(env, policy, episodes, seed=EVAL_SEED), env.target_position
         )
     return counts.tolist()
 

@@ -32,7 +32,7 @@ from train_config import SettingError, TrainConfig, available_cores
 
 from studies.memory.learner import Levers, RecurrentTrainer
 from studies.memory.study import RECIPE, RESULTS
-from studies.staging import staged_output
+from studies.staging import best_env_steps, best_selection, check_field, staged_output
 
 OUTPUT_DIR = RESULTS / "memory_levers"
 SETTINGS: dict[str, dict[str, Any]] = {
@@ -73,8 +73,8 @@ def train_setting(
         "setting": setting,
         "mode": mode,
         "seed": seed,
-        "best": trainer.best_selection,
-        "best_env_steps": trainer.best_env_steps,
+        "best": best_selection(trainer),
+        "best_env_steps": best_env_steps(trainer),
         "final": {"greedy": last["eval_success_greedy"], "eps": last["eval_success_eps"]},
         "seconds": round(time.perf_counter() - start, 1),
     }
@@ -128,7 +128,7 @@ def main(argv: list[str] | None = None) -> dict:
         )
     try:
         cfg = TrainConfig(**RECIPE | {"seeds": [], "workers": args.workers}).validate()
-        TrainConfig.check_field("workers", args.workers)
+        check_field("workers", args.workers)
     except SettingError as error:
         parser.error(error.usage())
     steps = max(SETTINGS[n].get("total_steps", cfg.total_steps) for n in names)

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from analysis.runs import load_policy
 from analysis.stats import seed_paired_differences, seed_statistics
 from batch_io import (
     ProgressLine,
@@ -40,7 +41,6 @@ from batch_io import (
 )
 from grid_maps import HELD_OUT_MAP_SEEDS
 from matplotlib.figure import Figure
-from models import load_policy
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED
 from train_config import SettingError, TrainConfig, available_cores, check_value, int_in
@@ -55,7 +55,7 @@ from studies.memory.held_out_tests import (
     shares,
 )
 from studies.memory.learner import TRANSITIONS_PER_EPISODE, RecurrentTrainer
-from studies.staging import staged_output, write_timing
+from studies.staging import best_env_steps, best_selection, check_field, staged_output, write_timing
 
 RESULTS = Path(__file__).resolve().parents[2] / "results" / "studies"
 STUDY_DIR = RESULTS / "memory"
@@ -95,8 +95,8 @@ def train_and_test(
     return {
         "mode": mode,
         "seed": seed,
-        "selected_env_steps": trainer.best_env_steps,
-        "validation_success": trainer.best_selection,
+        "selected_env_steps": best_env_steps(trainer),
+        "validation_success": best_selection(trainer),
         **tested,
         "seconds": {"training": trained, "total": time.perf_counter() - start},
     }
@@ -308,8 +308,8 @@ def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]
     settings = RECIPE | {"total_steps": args.total_steps, "seeds": [], "workers": args.workers}
     try:
         check_value("episodes_per_map", args.episodes_per_map, int_in(1, 100_000))
-        TrainConfig.check_field("num_seeds", args.num_seeds)
-        TrainConfig.check_field("output_dir", str(args.output_dir))
+        check_field("num_seeds", args.num_seeds)
+        check_field("output_dir", str(args.output_dir))
         cfg = TrainConfig(**settings).validate()
     except SettingError as error:
         parser.error(error.usage())
