@@ -18,7 +18,6 @@ from analysis.failures import (
     on_target,
 )
 from analysis.information import causal_influence, mutual_information
-from analysis.plots import EpisodeTrace, waiting_steps
 from analysis.interventions import (
     INTERVENTIONS,
     channel_verdict,
@@ -28,6 +27,7 @@ from analysis.interventions import (
     received_values,
     stack_tables,
 )
+from analysis.plots import EpisodeTrace, waiting_steps
 from analysis.stats import bootstrap_ci, interquartile_mean, mode_differences, seed_statistics
 from evaluate import MultiAgentEvaluator
 from models import MESSAGE_INDEX
