@@ -156,7 +156,7 @@ def draw_waiting(ax: Axes, trace: EpisodeTrace, target: tuple[int, int]) -> str:
     words = []
     for agent, steps in enumerate(waiting_steps(trace, target)):
         if steps > 0:
-            size = 15 + 5 * agent
+            size = 12 + 4 * agent
             colour, name = AGENT_COLOURS[agent], "AB"[agent]
             ax.plot(target[1], target[0], "o", ms=size, mfc="none", mec=colour, mew=1.8,
                     label=f"{name} waits on the target")  # fmt: skip
@@ -231,8 +231,9 @@ def _draw_trajectories(
             steps = f"{trace.length} step{'s' if trace.length != 1 else ''}"
             outcome = f"success in {steps}" if trace.success else "failure"
             description = "; ".join(w for w in (trace.description, waits) if w)
-            if compact:
-                ax.set_title(f"{outcome}\n{description}", fontsize=MIN_FONT)
+            if compact:  # one line each: outcome, the episode's kind, who waits
+                lines = [outcome, trace.description, waits]
+                ax.set_title("\n".join(w for w in lines if w), fontsize=MIN_FONT)
             else:
                 detail = f" ({description})" if description else ""
                 ax.set_title(f"{head}{outcome}{detail}", fontsize=MIN_FONT)
