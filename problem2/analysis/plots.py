@@ -217,6 +217,7 @@ def _draw_trajectories(
     grid: np.ndarray,
     compact: bool = False,
 ) -> None:
+    target = tuple(np.argwhere(grid == TARGET)[0])
     for (label, traces), row_axes in zip(rows, axes, strict=True):
         for ax, trace, kind in zip(row_axes, traces, ("successful", "other"), strict=True):
             draw_map(ax, grid, star_size=11 if compact else 18)
@@ -227,15 +228,14 @@ def _draw_trajectories(
                 ax.set_title(f"{head}no {kind} episode", fontsize=MIN_FONT)
                 continue
             draw_paths(ax, trace, marker_scale=0.7 if compact else 1.0)
-            waits = draw_waiting(ax, trace, tuple(np.argwhere(grid == TARGET)[0]))
+            waits = draw_waiting(ax, trace, target)
             steps = f"{trace.length} step{'s' if trace.length != 1 else ''}"
             outcome = f"success in {steps}" if trace.success else "failure"
-            description = "; ".join(w for w in (trace.description, waits) if w)
-            if compact:  # one line each: outcome, the episode's kind, who waits
-                lines = [outcome, trace.description, waits]
-                ax.set_title("\n".join(w for w in lines if w), fontsize=MIN_FONT)
+            details = [w for w in (trace.description, waits) if w]  # the kind, who waits
+            if compact:  # one line each
+                ax.set_title("\n".join([outcome, *details]), fontsize=MIN_FONT)
             else:
-                detail = f" ({description})" if description else ""
+                detail = f" ({'; '.join(details)})" if details else ""
                 ax.set_title(f"{head}{outcome}{detail}", fontsize=MIN_FONT)
         if compact:
             row_axes[0].set_ylabel(f"{label}\nrow")

@@ -85,14 +85,15 @@ def memory_cic(
     observations, actions = trajectories["observations"], trajectories["actions"]
     valid = actions[..., 0] >= 0  # (E, T)
     rng = np.random.default_rng(seed)
+    steps = np.flatnonzero(valid.ravel())  # the real steps, the same for both receivers
     chosen_per_receiver = []
     for receiver, agent in enumerate(agents):
         previous, hidden = memory_states(
             agent, observations[:, :, receiver], actions[..., receiver]
         )
-        rows = np.flatnonzero(valid.ravel())
+        rows = steps
         if len(rows) > max_states:
-            rows = np.sort(rng.choice(rows, max_states, replace=False))
+            rows = np.sort(rng.choice(steps, max_states, replace=False))
         pick = np.unravel_index(rows, valid.shape)
         chosen_per_receiver.append(
             (agent, observations[:, :-1, receiver][pick], previous[pick], hidden[pick])
