@@ -22,10 +22,8 @@ from typing import Any, TextIO
 
 @contextmanager
 def temporary_path_for(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary sibling of ``path``; move it onto ``path`` if the block succeeds.
-
-    The parent folder is created if needed; the temporary file is removed on error.
-    """
+    """Yield a temporary sibling of ``path`` (its folder created if needed); move it onto
+    ``path`` if the block succeeds, remove it on error."""
     final = Path(path)
     final.parent.mkdir(parents=True, exist_ok=True)
     temporary = final.with_name(f".{final.name}.tmp.{os.getpid()}")
@@ -36,12 +34,11 @@ def temporary_path_for(path: str | Path) -> Iterator[Path]:
         temporary.unlink(missing_ok=True)
 
 
-def write_json_atomic(path: str | Path, data: Any) -> Path:
+def write_json_atomic(path: str | Path, data: Any) -> None:
     """Write ``data`` as indented JSON (with a final newline) to ``path`` atomically."""
     with temporary_path_for(path) as temporary:
         text = json.dumps(data, indent=2, allow_nan=False) + "\n"
         temporary.write_text(text, encoding="utf-8", newline="\n")
-    return Path(path)
 
 
 def process_alive(pid: int) -> bool:
@@ -68,12 +65,6 @@ def process_alive(pid: int) -> bool:
     return True
 
 
-def owner_pid(path: Path) -> int | None:
-    """The process id that ends a temporary name (``.name.tmp.<pid>``, ``.staging.<pid>``)."""
-    suffix = path.name.rsplit(".", 1)[-1]
-    return int(suffix) if path.name.startswith(".") and suffix.isdigit() else None
-
-
 def remove_stale_temporaries(folder: str | Path) -> list[Path]:
     """Delete the hidden temporary files and folders (``.<name>.tmp.<pid>``, ``.staging.<pid>``,
     ``.replaced.<pid>``) in ``folder`` whose process no longer runs; return what was removed.
@@ -81,8 +72,8 @@ def remove_stale_temporaries(folder: str | Path) -> list[Path]:
     folder = Path(folder)
     removed = []
     for path in sorted(folder.iterdir()) if folder.is_dir() else []:
-        pid = owner_pid(path)
-        if pid is None or process_alive(pid):
+        pid = path.name.rsplit(".", 1)[-1]
+        if not (path.name.startswith(".") and pid.isdigit()) or process_alive(int(pid)):
             continue
         if path.is_dir() and not path.is_symlink():
             shutil.rmtree(path)
@@ -90,22 +81,6 @@ def remove_stale_temporaries(folder: str | Path) -> list[Path]:
             path.unlink()
         removed.append(path)
     return removed
-
-
-def first_missing_ancestor(path: Path) -> Path | None:
-    """The outermost folder of ``path`` (or itself) that does not exist yet."""
-    missing = None
-    for folder in (path, *path.parents):
-        if folder.exists():
-            break
-        missing = folder
-    return missing
-
-
-def remove_if_empty(folder: Path | None) -> None:
-    """Delete ``folder`` if it holds nothing but empty folders (what a failed batch made)."""
-    if folder is not None and folder.is_dir() and not any(p.is_file() for p in folder.rglob("*")):
-        shutil.rmtree(folder, ignore_errors=True)
 
 
 # ---------------------------------------------- worker processes and the progress line
@@ -170,10 +145,8 @@ def run_jobs(
 
 class ProgressLine:
     """One progress line for a batch of runs: runs finished, env steps, speed, ETA and the
-    latest evaluation. ``put`` takes the ``(run name, log row, seconds)`` the runs report.
-
-    On a terminal the line is rewritten in place and fits its width; otherwise (a file, a
-    pipe, CI) a plain line is printed at most every ``interval`` seconds, and at the end."""
+    latest evaluation (``put`` takes the runs' ``(run name, log row, seconds)``). Rewritten in
+    place on a terminal; elsewhere (a file, a pipe, CI) printed every ``interval`` seconds."""
 
     def __init__(
         self,

@@ -1,15 +1,8 @@
 """Run a batch of training runs (modes x seeds) and install its outputs as one whole.
 
-Used by ``python train.py``. Into ``output_dir`` (default ``problem2/results``) it writes
-``agent_models/``: each run's TorchScript pair (mask inside), each mode's best pair (by the
-selection evaluation on validation episodes), ``manifest.json`` (the batch: modes, seeds,
-map, every hyperparameter, code version, sha256 of every model), ``map.json``,
-``hyperparameters.json`` and, with ``--keep_best``, ``last_weights/`` (the weights each run
-ended with); and ``training_logs/``: a CSV per run (one row per periodic evaluation,
-appended as measured), its selection evaluation, the curves and ``timing.json`` (wall
-times, the only output that differs between identical reruns). The README's table of
-outputs names every file. Everything is written into ``<output_dir>/.staging.<pid>/`` and
-moved into place when the whole batch has finished (``OUTPUT_RULE`` in ``train_config.py``).
+Used by ``python train.py``. What goes where, and when a folder is refused, is ``OUTPUT_RULE``
+in ``train_config.py``; the README's table of outputs names every file. ``timing.json`` (wall
+times) is the only output that differs between identical reruns.
 """
 
 from __future__ import annotations
@@ -27,8 +20,6 @@ import numpy as np
 import torch
 from batch_io import (
     ProgressLine,
-    first_missing_ancestor,
-    remove_if_empty,
     remove_stale_temporaries,
     run_jobs,
     temporary_path_for,
@@ -59,29 +50,24 @@ def output_root(cfg: TrainConfig) -> Path:
 # ------------------------------------------------------------------ which folder may be used
 def batch_identity(cfg: TrainConfig) -> dict[str, Any]:
     """What a batch is, as the manifest records it (compared to decide replace vs refuse)."""
-    hyperparameters = cfg.hyperparameters()
     return {
         "modes": cfg.run_modes(),
         "seeds": cfg.run_seeds(),
         "map_seed": cfg.map_seed,
         "reward_mode": cfg.reward_mode,
-        "hyperparameters": hyperparameters,
+        "hyperparameters": cfg.hyperparameters(),
     }
 
 
 def identity_differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
     """``key old -> new`` for each setting in which two batch identities differ."""
-    flat = [
+    before, after = (
         {k: v for k, v in ident.get("hyperparameters", {}).items() if k not in PER_RUN_SETTINGS}
         | {"modes": ident.get("modes"), "seeds": ident.get("seeds")}
         for ident in (old, new)
-    ]
-    keys = sorted(set(flat[0]) | set(flat[1]))
-    return [
-        f"{k} {flat[0].get(k)!r} -> {flat[1].get(k)!r}"
-        for k in keys
-        if flat[0].get(k) != flat[1].get(k)
-    ]
+    )
+    keys = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
+    return [f"{k} {before.get(k)!r} -> {after.get(k)!r}" for k in keys]
 
 
 def holds_results(root: Path) -> bool:
@@ -143,8 +129,9 @@ def read_csv(path: Path) -> list[dict[str, float]]:
 def train_one(
     cfg: TrainConfig, mode: str, seed: int, models_dir: Path, logs_dir: Path, progress: Any = None
 ) -> dict[str, Any]:
-    """Train one (mode, seed) into ``models_dir`` / ``logs_dir``, run its selection
-    evaluation and return it. ``progress.put((name, row, seconds))`` gets each log row."""
+    """Train one (mode, seed) into ``models_dir`` / ``logs_dir``, run its selection evaluation
+    (greedy and ε = 0.05 on ``cfg.final_eval_episodes`` validation episodes: what picks the
+    best seed of a mode) and return it. ``progress.put((name, row, seconds))`` gets each row."""
     torch.set_num_threads(1)
     run_cfg = TrainConfig(
         **{**cfg.to_dict(), "mode": mode, "seed": seed, "seeds": [], "workers": 1}
@@ -167,20 +154,12 @@ def train_one(
             trainer.save_models()
 
     trainer.train(report)
-    selection = selection_evaluation(trainer, cfg)
-    write_json_atomic(logs_dir / f"{name}_selection.json", {"mode": mode, "seed": seed} | selection)
-    return {"mode": mode, "seed": seed, **selection, "seconds": time.perf_counter() - start}
-
-
-def selection_evaluation(trainer: MultiAgentTrainer, cfg: TrainConfig) -> dict[str, Any]:
-    """Greedy and ε = 0.05 results on ``cfg.final_eval_episodes`` validation episodes
-    (success rate, mean steps to success, mean return): what picks the best seed of a mode,
-    by ``cfg.select_by`` (:func:`rollout.select_best`)."""
-    result: dict[str, Any] = {"select_by": cfg.select_by, "validation_seed": VALIDATION_SEED}
+    selection: dict[str, Any] = {"select_by": cfg.select_by, "validation_seed": VALIDATION_SEED}
     for label, epsilon in (("greedy", 0.0), ("eps", EVAL_EPSILON)):
         summary = trainer.evaluation_summary(cfg.final_eval_episodes, epsilon, VALIDATION_SEED)
-        result[label] = {"epsilon": epsilon, **summary}
-    return result
+        selection[label] = {"epsilon": epsilon, **summary}
+    write_json_atomic(logs_dir / f"{name}_selection.json", {"mode": mode, "seed": seed} | selection)
+    return {"mode": mode, "seed": seed, **selection, "seconds": time.perf_counter() - start}
 
 
 # ------------------------------------------------------------------------------ the batch
@@ -194,7 +173,8 @@ def run_experiments(cfg: TrainConfig) -> list[dict[str, Any]]:
     cfg.validate()
     check_output_dir(cfg)
     root = output_root(cfg)
-    created = first_missing_ancestor(root)
+    # The outermost folder that this batch creates (None: root exists).
+    created = next((p for p in reversed((root, *root.parents)) if not p.exists()), None)
     for folder in (root, root / "agent_models", root / "training_logs"):
         remove_stale_temporaries(folder)
     staging = root / f".staging.{os.getpid()}"
@@ -205,12 +185,15 @@ def run_experiments(cfg: TrainConfig) -> list[dict[str, Any]]:
         logs_dir.mkdir()
         finals = train_batch(cfg, models_dir, logs_dir)
         install(staging, root)
-    except KeyboardInterrupt:
-        keep_interrupted(staging, root)
+    except KeyboardInterrupt:  # keep what it measured (no manifest: no reader takes it for results)
+        if staging.is_dir():
+            shutil.rmtree(root / INTERRUPTED, ignore_errors=True)
+            os.replace(staging, root / INTERRUPTED)
         raise
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
-        remove_if_empty(created)
+        if created and created.is_dir() and not any(p.is_file() for p in created.rglob("*")):
+            shutil.rmtree(created, ignore_errors=True)  # it holds only empty folders
         raise
     return finals
 
@@ -271,15 +254,12 @@ def manifest(
         last = {agent: f"{LAST_WEIGHTS}/{name}_agent_{agent}.pt" for agent in "AB"}
         if all((models_dir / f).is_file() for f in last.values()):  # trained with keep_best
             runs[name]["last_weights"] = model_listing(last, models_dir)
-    return {"format": 1, **batch_identity(cfg), "code_version": code_version()} | {
-        "runs": runs,
-        "best": best,
-    }
+    identity = {"format": 1, **batch_identity(cfg), "code_version": code_version()}
+    return identity | {"runs": runs, "best": best}
 
 
 def model_listing(files: dict[str, str], models_dir: Path) -> dict[str, dict[str, str]]:
-    """The manifest's record of a model pair: its files (relative to ``models_dir``) and
-    their sha256."""
+    """The manifest's record of a model pair: files (relative to ``models_dir``), sha256."""
     digests = {a: hashlib.sha256((models_dir / f).read_bytes()) for a, f in files.items()}
     return {"models": files, "sha256": {a: d.hexdigest() for a, d in digests.items()}}
 
@@ -309,14 +289,6 @@ def install(staging: Path, root: Path) -> None:
     shutil.rmtree(root / INTERRUPTED, ignore_errors=True)  # superseded by a whole batch
 
 
-def keep_interrupted(staging: Path, root: Path) -> None:
-    """Keep what an interrupted batch measured in ``root/interrupted`` (no manifest, so no
-    reader takes it for results)."""
-    if staging.is_dir():
-        shutil.rmtree(root / INTERRUPTED, ignore_errors=True)
-        os.replace(staging, root / INTERRUPTED)
-
-
 # ------------------------------------------------------------------------------- figures
 CURVE_PANELS = (
     ("eval_success_eps", "success rate", (0.0, 1.02)),
@@ -324,7 +296,7 @@ CURVE_PANELS = (
 )  # validation episodes at ε = 0.05, the reward trained on
 
 
-def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], title: str) -> Path:
+def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], title: str) -> None:
     """Validation success and return (ε = 0.05) against env steps, one column per mode:
     every seed as a thin line (its last point is the weights the run ended with), the mean
     over seeds and the interquartile band."""
@@ -356,10 +328,5 @@ def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], tit
             ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x / 1000:g}k" if x else "0"))
     axes[0, 0].legend(loc="lower right")
     fig.suptitle(title)
-    path = logs_dir / "training_curves.png"
-    with temporary_path_for(path) as temporary:
+    with temporary_path_for(logs_dir / "training_curves.png") as temporary:
         fig.savefig(temporary, format="png", dpi=150)
-    return path
-
-
-__all__ = ["check_output_dir", "plot_training_curves", "run_experiments", "train_one"]

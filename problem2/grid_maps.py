@@ -81,8 +81,7 @@ def check_grid(grid: np.ndarray | list) -> np.ndarray:
 
 def check_grid_stack(maps: np.ndarray, name: str = "maps") -> np.ndarray:
     """``maps`` (M, H, W) as a read-only int64 stack, or ValueError naming the first bad
-    map: what :func:`check_grid` checks, vectorised over the stack (connectivity
-    by flood-filling every map at once from its target)."""
+    map: what :func:`check_grid` checks, vectorised over the stack."""
     maps = np.asarray(maps)
     if maps.ndim != 3 or len(maps) == 0 or maps.dtype.kind not in "iu":
         raise ValueError(
@@ -149,16 +148,11 @@ MAX_POOL_SIZE = VALIDATION_FIRST_SEED - TRAINING_FIRST_SEED  # the ranges never 
 
 
 @lru_cache(maxsize=8)
-def _excluded_maps(grid_size: tuple[int, int]) -> frozenset[bytes]:
-    seeds = (*HELD_OUT_MAP_SEEDS, DEFAULT_MAP_SEED)
-    return frozenset(generate_map(grid_size, seed).tobytes() for seed in seeds)
-
-
-@lru_cache(maxsize=8)
 def _pool(first_seed: int, size: int, grid_size: tuple[int, int]) -> np.ndarray:
     if not isinstance(size, int) or not 1 <= size <= MAX_POOL_SIZE:
         raise ValueError(f"a map pool holds 1..{MAX_POOL_SIZE} maps, got {size!r}")
-    excluded = _excluded_maps(grid_size)
+    seeds = (*HELD_OUT_MAP_SEEDS, DEFAULT_MAP_SEED)
+    excluded = {generate_map(grid_size, seed).tobytes() for seed in seeds}
     maps, seed = [], first_seed
     while len(maps) < size:
         grid = generate_map(grid_size, seed)
@@ -198,18 +192,6 @@ def check_seed(seed: object, name: str = "seed") -> int | None:
     return None if seed is None else int(seed)
 
 
-def check_choice(value: object, choices: tuple[str, ...], name: str) -> str:
-    if value not in choices:
-        raise ValueError(f"{name} must be one of {choices}, got {value!r}")
-    return value
-
-
-def check_obs_window(obs_window: object) -> int:
-    if not is_integer(obs_window) or obs_window < 3 or obs_window % 2 == 0:
-        raise ValueError(f"obs_window must be an odd integer >= 3, got {obs_window!r}")
-    return int(obs_window)
-
-
 def choose_maps(
     n_envs: int,
     grid_size: tuple[int, int],
@@ -218,11 +200,9 @@ def choose_maps(
     grids: np.ndarray | None,
     map_pool: np.ndarray | None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """The maps (M, H, W) the copies play and, if M = 1, that map (H, W), else None.
-
-    At most one of ``grid``, ``grids`` (one map per copy) and ``map_pool`` may be given;
-    each is checked. With none, the map is generated from ``seed`` at ``grid_size``.
-    """
+    """The maps (M, H, W) the copies play and, if M = 1, that map (H, W), else None: the
+    checked ``grid``, ``grids`` (one map per copy) or ``map_pool`` (at most one of them), or
+    with none the map generated from ``seed`` at ``grid_size``."""
     if sum(option is not None for option in (grid, grids, map_pool)) > 1:
         raise ValueError("give at most one of grid, grids and map_pool")
     if grids is not None or map_pool is not None:
@@ -236,8 +216,10 @@ def choose_maps(
     return one_map[None], one_map
 
 
-def check_joint_actions(actions: np.ndarray, n_envs: int) -> np.ndarray:
-    """``actions`` as an (N, 2) integer array in 0..4, or ValueError."""
+def check_step(actions: object, messages: object, n_envs: int) -> tuple[np.ndarray, np.ndarray]:
+    """``actions`` as an (N, 2) integer array in 0..4 and ``messages`` (N, 2) as float32
+    clipped into [0, 1] (the channel is bounded); NaN, inf, a non-number or another shape
+    raises ValueError."""
     actions = np.asarray(actions)
     if actions.shape != (n_envs, 2):
         raise ValueError(f"actions must have shape ({n_envs}, 2), got {actions.shape}")
@@ -246,12 +228,6 @@ def check_joint_actions(actions: np.ndarray, n_envs: int) -> np.ndarray:
     if actions.min() < 0 or actions.max() >= NUM_ACTIONS:
         bad = np.unique(actions[(actions < 0) | (actions >= NUM_ACTIONS)])
         raise ValueError(f"actions must be in 0..4 (Up, Down, Left, Right, Stay), got {bad}")
-    return actions
-
-
-def check_messages(messages: np.ndarray, n_envs: int) -> np.ndarray:
-    """``messages`` (N, 2) as float32 clipped into [0, 1] (the channel is bounded); NaN,
-    inf, a non-number or another shape raises ValueError."""
     messages = np.asarray(messages)
     if messages.shape != (n_envs, 2) or messages.dtype.kind not in "fiub":
         raise ValueError(
@@ -260,4 +236,4 @@ def check_messages(messages: np.ndarray, n_envs: int) -> np.ndarray:
         )
     if not np.isfinite(messages).all():
         raise ValueError(f"messages must be finite numbers (clipped into [0, 1]), got {messages}")
-    return np.clip(messages, 0.0, 1.0).astype(np.float32, copy=False)  # clip made a copy
+    return actions, np.clip(messages, 0.0, 1.0).astype(np.float32, copy=False)  # clip copies

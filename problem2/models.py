@@ -108,11 +108,10 @@ class PairedQNetworks(nn.Module):
     (independent learners), and one batched matrix product evaluates both.
 
     Parameters, agent axis first: ``hidden_weight`` [2, H, D], ``hidden_bias`` [2, 1, H],
-    ``head_weight`` [2, K, H], ``head_bias`` [2, 1, K]. The K head rows are the
-    ``num_actions`` Q-values (advantages for the dueling form), then the state value for
-    the dueling form, then the message logit. :meth:`agent` turns one agent's slice back
-    into a plain :class:`AgentDQN` / :class:`DuelingDQN` with identical outputs (for export
-    and for the interface methods that take one network).
+    ``head_weight`` [2, K, H], ``head_bias`` [2, 1, K]; the K head rows are the Q-values
+    (advantages for the dueling form), the state value (dueling only), the message logit.
+    :meth:`agent` turns one agent's slice back into a plain :class:`AgentDQN` /
+    :class:`DuelingDQN` with identical outputs (for export and the one-network methods).
     """
 
     def __init__(
@@ -251,14 +250,10 @@ def export_policy(
 
 
 def _without_debug_sources(archive: bytes) -> bytes:
-    """Make a TorchScript archive depend on its content only.
-
-    Drops the ``*.debug_pkl`` entries: they map the code to source lines and contain the
-    absolute path of this file, so two checkouts in different folders would write different
-    bytes; ``torch.jit.load`` does not need them (an error inside a loaded model just reports
-    no Python source line). Replaces the random per-process ``.data/serialization_id`` (40
-    digits, used by torch only to tell archives apart) by 40 digits of a SHA-256 of the
-    other entries, so equal weights give byte-identical files in any process."""
+    """Make a TorchScript archive depend on its content only: drop the ``*.debug_pkl``
+    entries (source maps holding this file's absolute path, which ``torch.jit.load`` does not
+    need), and replace the random per-process ``.data/serialization_id`` by 40 digits of a
+    SHA-256 of the other entries, so equal weights give byte-identical files anywhere."""
     source = zipfile.ZipFile(io.BytesIO(archive))
     entries = [e for e in source.infolist() if not e.filename.endswith(".debug_pkl")]
     digest = hashlib.sha256()

@@ -1,10 +1,7 @@
-"""Experience replay for the two agents' joint transitions.
-
-``ReplayBuffer`` samples uniformly; ``PrioritizedReplayBuffer`` samples in proportion to
-priority^alpha from a sum-tree. A joint transition is (s_A, s_B, a_A, a_B, c_A, c_B, r,
-s'_A, s'_B, done) plus whatever extras the learner stores with it (the trainer: each
-agent's previous observation for DIAL, the n-step discount, the observations one step
-before s').
+"""Experience replay for the two agents' joint transitions (s_A, s_B, a_A, a_B, c_A, c_B, r,
+s'_A, s'_B, done), plus any extras the learner stores with them (the trainer: previous
+observations for DIAL, the n-step discount, the observations one step before s').
+``ReplayBuffer`` samples uniformly, ``PrioritizedReplayBuffer`` by priority^alpha.
 """
 
 from __future__ import annotations
@@ -28,9 +25,8 @@ _INTEGER_FIELDS = ("action_A", "action_B")  # stored as int64; the other require
 
 
 def _positive_int(value: int, name: str) -> int:
-    if not isinstance(value, numbers.Real) or isinstance(value, bool) or not value >= 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    if int(value) != value:
+    number = isinstance(value, numbers.Real) and not isinstance(value, bool)
+    if not (number and 1 <= value == int(value)):
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
     return int(value)
 
@@ -92,13 +88,11 @@ def check_transitions(arrays: dict[str, np.ndarray]) -> None:
 class ReplayBuffer:
     """Uniform replay over the last ``capacity`` joint transitions; ``seed`` seeds sampling.
 
-    One storage: a float32 matrix (capacity, row width), a ring, each transition one row and
-    each field a block of its columns (:attr:`layout`; A's and B's observations side by side,
-    so a learner can view both as one (2, B, D) block). The fields and their shapes (the
-    observation size too) are fixed by the first push, which every later push must match.
-    One way in, :meth:`push_batch`; one way to draw, :meth:`sample_rows` (a gather of whole
-    rows); :meth:`unpack` turns rows back into fields in their dtypes. The course's
-    :meth:`push` and :meth:`sample` are built on them.
+    One float32 ring (capacity, row width): a transition is a row, a field a block of its
+    columns (:attr:`layout`; A's and B's observations side by side, so a learner can view both
+    as one (2, B, D) block). The first push fixes the fields and their shapes. One way in,
+    :meth:`push_batch`; one way to draw, :meth:`sample_rows`; :meth:`unpack` turns rows back
+    into fields. The course's :meth:`push` and :meth:`sample` are built on them.
     """
 
     def __init__(self, capacity: int = 10000, seed: int | None = None) -> None:
@@ -149,7 +143,17 @@ class ReplayBuffer:
             check_transitions(arrays)
         if not self._shapes:
             self._allocate({name: value.shape[1:] for name, value in arrays.items()})
-        self._check_fields(arrays)
+        if set(arrays) != set(self._shapes):
+            raise ValueError(
+                f"fields {sorted(arrays)} differ from those of the first push "
+                f"{sorted(self._shapes)}"
+            )
+        for name, value in arrays.items():
+            if value.shape[1:] != self._shapes[name]:
+                raise ValueError(
+                    f"{name} has per-transition shape {value.shape[1:]}, the "
+                    f"buffer holds {self._shapes[name]}"
+                )
         batch_size = min(lengths.pop(), self.capacity)
         slots = (self._next_slot + np.arange(batch_size)) % self.capacity
         end = self._next_slot + batch_size
@@ -177,19 +181,6 @@ class ReplayBuffer:
             width += size
         self._rows = np.zeros((self.capacity, width), np.float32)
 
-    def _check_fields(self, arrays: dict[str, np.ndarray]) -> None:
-        if set(arrays) != set(self._shapes):
-            raise ValueError(
-                f"fields {sorted(arrays)} differ from those of the first push "
-                f"{sorted(self._shapes)}"
-            )
-        for name, value in arrays.items():
-            if value.shape[1:] != self._shapes[name]:
-                raise ValueError(
-                    f"{name} has per-transition shape {value.shape[1:]}, the "
-                    f"buffer holds {self._shapes[name]}"
-                )
-
     def _draw_indices(self, batch_size: int) -> np.ndarray:
         return self._rng.integers(self._size, size=batch_size)
 
@@ -200,9 +191,8 @@ class ReplayBuffer:
     def sample_rows(
         self, batch_size: int, out: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Draw ``batch_size`` slots (with replacement) and gather their whole rows, into
-        ``out`` (batch_size, row width) float32 if given. Returns (rows, importance weights
-        (B,) float32 — all 1 for uniform replay —, slots (B,))."""
+        """Draw ``batch_size`` slots (with replacement) and gather their whole rows (into ``out``
+        (batch_size, row width) float32 if given): (rows, weights (B,) float32, slots (B,))."""
         batch_size = _positive_int(batch_size, "batch_size")
         if batch_size > self._size:
             raise ValueError(
@@ -346,11 +336,9 @@ class PrioritizedReplayBuffer(ReplayBuffer):
             raise ValueError(f"indices must be stored slots in 0..{self._size - 1}")
         if not (np.isfinite(priorities).all() and (priorities > 0).all()):
             raise ValueError("priorities must be positive and finite")
-        # A sample may draw a slot twice (with different TD errors under DIAL's noise).
         unique, inverse = np.unique(indices, return_inverse=True)
         largest = np.zeros(len(unique))
         np.maximum.at(largest, inverse, priorities)
-        indices, priorities = unique, largest
-        self._tree.update(indices, priorities**self.alpha)
-        if len(priorities):
-            self._max_priority = max(self._max_priority, float(priorities.max()))
+        self._tree.update(unique, largest**self.alpha)
+        if len(largest):
+            self._max_priority = max(self._max_priority, float(largest.max()))

@@ -1,8 +1,7 @@
 """The one episode loop of Problem 2, and the evaluation protocol's constants.
 
-Every evaluation (the trainer's periodic validation, the evaluator's test episodes, the
-baselines) runs a policy through :func:`run_episodes` on a vectorised environment, many
-episodes at once, with fixed start cells drawn from a seed.
+Every evaluation (the trainer's validation, the evaluator's test episodes, the baselines)
+runs a policy through :func:`run_episodes`, many episodes at once, start cells from a seed.
 
 A policy is a plain function ``(observations (N, 2, obs_dim), positions (N, 2, 2)) ->
 (actions (N, 2) ints in 0..4, messages (N, 2) in [0, 1])``.
@@ -48,46 +47,35 @@ def run_episodes(
     episodes). Copies that finish are ignored for the rest of the round. The first round
     resets with ``seed``, later rounds continue its stream: results are reproducible.
     Success means both agents on the target within ``env.max_steps`` steps.
-    ``start_positions`` (n_envs, 2, 2) places the agents of the first round by hand
-    (instead of drawing from ``seed``).
+    ``start_positions`` (n_envs, 2, 2) places the first round's agents by hand instead.
     """
     if not env.auto_reset:
         raise ValueError("run_episodes needs an environment built with auto_reset=True")
     if num_episodes < 1:
         raise ValueError(f"num_episodes must be positive, got {num_episodes}")
-    rounds = [
-        _run_round(env, policy_fn, seed if i == 0 else None, start_positions if i == 0 else None)
-        for i in range(math.ceil(num_episodes / env.n_envs))
-    ]
+    n = env.n_envs
+    rounds = []
+    for i in range(math.ceil(num_episodes / n)):
+        obs = env.reset(seed=seed, positions=start_positions) if i == 0 else env.reset()
+        active = np.ones(n, dtype=bool)
+        result = {
+            "returns": np.zeros(n),
+            "successes": np.zeros(n, dtype=bool),
+            "lengths": np.zeros(n, dtype=np.int64),
+        }
+        for _ in range(env.max_steps):
+            actions, messages = policy_fn(obs, env.positions)
+            obs, rewards, terminated, truncated, info = env.step(actions, messages)
+            result["returns"] += np.where(active, rewards, 0.0)
+            finished = active & (terminated | truncated)
+            result["successes"][finished] = terminated[finished]
+            result["lengths"][finished] = info["steps"][finished]
+            active &= ~finished
+            if not active.any():
+                break
+        rounds.append(result)
     joined = {key: np.concatenate([r[key] for r in rounds])[:num_episodes] for key in rounds[0]}
     return EpisodeResults(**joined)
-
-
-def _run_round(
-    env: VectorMultiAgentEnv,
-    policy_fn: PolicyFn,
-    seed: int | None,
-    start_positions: np.ndarray | None = None,
-) -> dict[str, np.ndarray]:
-    n = env.n_envs
-    obs = env.reset(seed=seed, positions=start_positions)
-    active = np.ones(n, dtype=bool)
-    result = {
-        "returns": np.zeros(n),
-        "successes": np.zeros(n, dtype=bool),
-        "lengths": np.zeros(n, dtype=np.int64),
-    }
-    for _ in range(env.max_steps):
-        actions, messages = policy_fn(obs, env.positions)
-        obs, rewards, terminated, truncated, info = env.step(actions, messages)
-        result["returns"] += np.where(active, rewards, 0.0)
-        finished = active & (terminated | truncated)
-        result["successes"][finished] = terminated[finished]
-        result["lengths"][finished] = info["steps"][finished]
-        active &= ~finished
-        if not active.any():
-            break
-    return result
 
 
 def summarize(results: EpisodeResults) -> dict[str, float | int | None]:
@@ -149,15 +137,10 @@ class NStepWindow:
     + ... + γ^(k-1) r_{t+k-1}, the observation s_{t+k} it bootstraps from (``next_state_*``),
     for n > 1 the observation s_{t+k-1} before it (``last_state_*``, whose sender's message
     s_{t+k} holds) and the discount γ^k, 0 if the episode terminated within those k steps;
-    k is n, or fewer where the episode ends (terminal or cut off) first. The caller gives
-    the fields known at the start (state, action, message, ...), each (N, ...); the window
-    adds ``reward``, ``next_state_A``/``_B``, ``done`` and ``discount``.
-
-    Each field's ring has n rows of N slots: the transition starting at step s in copy c is
-    slot (s % n) * N + c. With n = 3 and N = 2, step 0's transitions (slots 0, 1) are
-    complete at step 2 and leave, so step 3 reuses row 0; if copy 1 is cut off at step 3,
-    that step returns copy 0's from step 1 (slot 2, k = 3), then copy 1's from steps 1, 2
-    and 3 (slots 3, 5 and 1; k = 3, 2 and 1): oldest start first, then by copy.
+    k is n, or fewer where the episode ends (terminal or cut off) first. To the fields the
+    caller gives at the start the window adds ``reward``, ``next_state_A``/``_B``, ``done``
+    and ``discount``. Each field's ring has n rows of N slots: the transition starting at
+    step s in copy c is slot (s % n) * N + c.
     """
 
     def __init__(self, n_step: int, gamma: float, n_envs: int) -> None:

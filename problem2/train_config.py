@@ -1,9 +1,6 @@
-"""Hyperparameters of Problem 2's training, in one dataclass that also builds the CLI.
-
-Each field's one-line docstring is its ``--help`` text. Every flag is accepted with
-underscores (the course's spelling, ``--num_episodes``) and with dashes (``--num-episodes``);
-every list flag takes its values space- or comma-separated (``--seeds 641 642`` or
-``--seeds 641,642``). :meth:`TrainConfig.validate` checks every field before any work starts.
+"""Hyperparameters of Problem 2's training, in one dataclass that also builds the CLI: a flag
+per field (``--num_episodes`` or ``--num-episodes``; list flags take ``--seeds 641 642`` or
+``--seeds 641,642``), its docstring the help text, every value checked before any work starts.
 """
 
 from __future__ import annotations
@@ -22,6 +19,12 @@ from typing import Any
 from grid_maps import MAX_POOL_SIZE, generate_map
 from rollout import SELECT_BY
 
+MODES = ("independent", "comm", "full")
+DEFAULT_OUTPUT_DIR = Path(__file__).resolve().parent / "results"
+MAX_SEED = 2**32 - 1
+MAX_GRID_SIDE = 100
+RUN_ONLY_FIELDS = ("output_dir", "workers", "overwrite")  # where and how, not what
+
 # ------------------------------------------------------------ checks of single settings
 Check = Callable[[Any], str | None]
 
@@ -35,7 +38,10 @@ class SettingError(ValueError):
 
     def usage(self) -> str:
         """The usage error: ``argument --name: problem, got value``."""
-        return f"argument --{self.name}: {self.problem}, got {_shown(self.value)}"
+        shown = repr(self.value) if isinstance(self.value, str) else str(self.value)
+        if isinstance(self.value, list):
+            shown = " ".join(str(v) for v in self.value)
+        return f"argument --{self.name}: {self.problem}, got {shown}"
 
 
 def check_value(name: str, value: Any, check: Check) -> None:
@@ -43,12 +49,6 @@ def check_value(name: str, value: Any, check: Check) -> None:
     problem = check(value)
     if problem:
         raise SettingError(name, problem, value)
-
-
-def _shown(value: Any) -> str:
-    if isinstance(value, list):
-        return " ".join(str(v) for v in value)
-    return repr(value) if isinstance(value, str) else str(value)
 
 
 def is_int(value: Any) -> bool:
@@ -71,10 +71,10 @@ def number_in(low: float, high: float, low_open: bool = False, high_open: bool =
     allowed = f"a finite number in {left}{low:g}, {shown_high}"
 
     def check(value: Any) -> str | None:
-        if not (isinstance(value, (int, float)) and not isinstance(value, bool)):
-            return f"must be {allowed}"
         ok = (
-            math.isfinite(value)
+            isinstance(value, (int, float))
+            and not isinstance(value, bool)
+            and math.isfinite(value)
             and (value > low if low_open else value >= low)
             and (value < high if high_open else value <= high)
         )
@@ -91,48 +91,35 @@ def boolean(value: Any) -> str | None:
     return None if isinstance(value, bool) else "must be True or False"
 
 
-def modes_from(modes: tuple[str, ...]) -> Check:
-    """``all`` or a comma-separated list of distinct ``modes``."""
-    message = f"must be all or a comma-separated list of distinct modes from {', '.join(modes)}"
-
-    def check(value: Any) -> str | None:
-        if value == "all":
-            return None
-        if not isinstance(value, str) or not value:
-            return message
-        chosen = value.split(",")
-        return None if set(chosen) <= set(modes) and len(set(chosen)) == len(chosen) else message
-
-    return check
+def mode_list(value: Any) -> str | None:
+    """``all`` or a comma-separated list of distinct modes."""
+    if value == "all":
+        return None
+    chosen = value.split(",") if isinstance(value, str) and value else []
+    if chosen and set(chosen) <= set(MODES) and len(set(chosen)) == len(chosen):
+        return None
+    return f"must be all or a comma-separated list of distinct modes from {', '.join(MODES)}"
 
 
-def distinct_ints_in(low: int, high: int) -> Check:
-    def check(value: Any) -> str | None:
-        ok = (
-            isinstance(value, (list, tuple))
-            and all(is_int(s) and low <= s <= high for s in value)
-            and len(set(value)) == len(value)
-        )
-        return None if ok else f"must be distinct integers in {low}..{high}"
-
-    return check
+def seed_list(value: Any) -> str | None:
+    ok = (
+        isinstance(value, (list, tuple))
+        and all(is_int(s) and 0 <= s <= MAX_SEED for s in value)
+        and len(set(value)) == len(value)
+    )
+    return None if ok else f"must be distinct integers in 0..{MAX_SEED}"
 
 
-def grid_sides_in(low: int, high: int) -> Check:
+def grid_sides(value: Any) -> str | None:
     """One side (a square grid) or two, rows and columns."""
-
-    def check(value: Any) -> str | None:
-        sides = value if isinstance(value, list) else [value]
-        ok = len(sides) in (1, 2) and all(is_int(s) and low <= s <= high for s in sides)
-        return None if ok else f"must be one or two integers in {low}..{high}"
-
-    return check
+    sides = value if isinstance(value, list) else [value]
+    ok = len(sides) in (1, 2) and all(is_int(s) and 3 <= s <= MAX_GRID_SIDE for s in sides)
+    return None if ok else f"must be one or two integers in 3..{MAX_GRID_SIDE}"
 
 
 def epsilon_decay(value: Any) -> str | None:
-    if value == 0 and not isinstance(value, bool):
-        return None
-    if number_in(0.0, 1.0, low_open=True, high_open=True)(value) is None:
+    zero = value == 0 and not isinstance(value, bool)
+    if zero or number_in(0.0, 1.0, low_open=True, high_open=True)(value) is None:
         return None
     return (
         "must be 0 (linear schedule) or a multiplicative factor per episode in (0, 1), e.g. 0.995"
@@ -143,13 +130,6 @@ def folder(value: Any) -> str | None:
     if not isinstance(value, (str, os.PathLike)) or not str(value):
         return "must be a folder path"
     return "must be a folder, not a file" if Path(value).is_file() else None
-
-
-MODES = ("independent", "comm", "full")
-DEFAULT_OUTPUT_DIR = Path(__file__).resolve().parent / "results"
-MAX_SEED = 2**32 - 1
-MAX_GRID_SIDE = 100
-RUN_ONLY_FIELDS = ("output_dir", "workers", "overwrite")  # where and how, not what
 
 
 def available_cores() -> int:
@@ -322,12 +302,12 @@ class TrainConfig:
 
 # ------------------------------------------------------------------------ field checks
 FIELD_CHECKS: dict[str, Check] = {
-    "mode": modes_from(MODES),
+    "mode": mode_list,
     "seed": int_in(0, MAX_SEED),
     "num_seeds": int_in(1),
-    "seeds": distinct_ints_in(0, MAX_SEED),
+    "seeds": seed_list,
     "map_seed": int_in(0, MAX_SEED),
-    "grid_size": grid_sides_in(3, MAX_GRID_SIDE),
+    "grid_size": grid_sides,
     "max_steps": int_in(1),
     "reward_mode": one_of("goal", "per_step", "arrival"),
     "potential_credit": one_of("agent", "team"),
@@ -397,15 +377,13 @@ assert set(FIELD_CHECKS) == {f.name for f in dataclasses.fields(TrainConfig)}
 def field_docs(cls: type) -> dict[str, str]:
     """The string literal that follows each field in the class body (whitespace joined)."""
     body = ast.parse(inspect.getsource(cls)).body[0].body
-    docs = {}
-    for statement, following in zip(body, body[1:], strict=False):
-        if (
-            isinstance(statement, ast.AnnAssign)
-            and isinstance(following, ast.Expr)
-            and isinstance(following.value, ast.Constant)
-        ):
-            docs[statement.target.id] = " ".join(following.value.value.split())
-    return docs
+    return {
+        statement.target.id: " ".join(following.value.value.split())
+        for statement, following in zip(body, body[1:], strict=False)
+        if isinstance(statement, ast.AnnAssign)
+        and isinstance(following, ast.Expr)
+        and isinstance(following.value, ast.Constant)
+    }
 
 
 class ListAction(argparse.Action):
@@ -432,8 +410,7 @@ class ListAction(argparse.Action):
 OUTPUT_RULE = """\
 Outputs (in --output_dir): agent_models/ (TorchScript pairs, manifest.json, map.json,
 hyperparameters.json) and training_logs/ (one CSV per run, <run>_selection.json, curves,
-timing.json). A relative --output_dir is relative to the current folder; the default is
-problem2/results wherever you run from.
+timing.json).
 
 A batch is written into a hidden staging folder inside --output_dir and moved into place
 only when every run has finished, so the folder holds one whole batch or the previous one.
@@ -464,9 +441,8 @@ def build_parser(cls: type = TrainConfig) -> argparse.ArgumentParser:
         if isinstance(default, bool):
             options["action"] = argparse.BooleanOptionalAction
         elif spec.name in LIST_FLAGS:
-            item_type, metavar = LIST_FLAGS[spec.name]
+            item_type, options["metavar"] = LIST_FLAGS[spec.name]
             options |= {"nargs": "+", "action": ListAction, "item_type": item_type}
-            options["metavar"] = metavar
         else:
             options["type"] = type(default)
         parser.add_argument(*names, **options)
@@ -480,16 +456,14 @@ LIST_FLAGS: dict[str, tuple[Callable[[str], Any], str]] = {
 }
 
 
-def config_from_namespace(namespace: argparse.Namespace) -> TrainConfig:
-    values = vars(namespace).copy()
+def parse_config(
+    argv: Sequence[str] | None = None, parser: argparse.ArgumentParser | None = None
+) -> TrainConfig:
+    """Parse and validate; a bad value raises :class:`SettingError` (a ValueError)."""
+    values = vars((parser or build_parser()).parse_args(argv))
     if isinstance(values.get("mode"), list):
         values["mode"] = ",".join(values["mode"])
-    return TrainConfig(**values)
-
-
-def parse_config(argv: Sequence[str] | None = None) -> TrainConfig:
-    """Parse and validate; a bad value raises :class:`SettingError` (a ValueError)."""
-    return config_from_namespace(build_parser().parse_args(argv)).validate()
+    return TrainConfig(**values).validate()
 
 
 def parse_config_or_exit(
@@ -501,7 +475,7 @@ def parse_config_or_exit(
     folder rule) may raise SettingError too."""
     parser = build_parser()
     try:
-        cfg = config_from_namespace(parser.parse_args(argv)).validate()
+        cfg = parse_config(argv, parser)
         if extra_check is not None:
             extra_check(cfg)
     except SettingError as error:

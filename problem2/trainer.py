@@ -166,6 +166,7 @@ class MultiAgentTrainer:
         self.rollout = self.start_rollout(cfg.num_envs, self.seed)
         self.obs_dim = self.rollout.env.obs_dim
         self.mask = torch.tensor(observation_mask(self.mode, self.obs_dim))
+        self.message_column = torch.arange(self.obs_dim) == self.obs_dim - 2  # (D,) element w²
         self.online = PairedQNetworks(self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, cfg.dueling)
         self.target = PairedQNetworks(self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, cfg.dueling)
         if cfg.share_weights:  # one set of weights: B starts as a copy of A
@@ -263,15 +264,12 @@ class MultiAgentTrainer:
         self, rewards: np.ndarray, info: dict[str, np.ndarray], obs: np.ndarray
     ) -> np.ndarray:
         """The team rewards (N,) plus the terms only learning sees: with ``potential_credit``
-        team, the potential-based arrival term γ Φ(s') − Φ(s), Φ = ``target_potential`` per
-        agent on the target (``obs`` (N, 2, D) before the step); ``coverage_bonus`` per newly
-        seen cell; ``on_target_bonus`` per agent on the target. (With ``potential_credit``
-        agent, :meth:`td_loss` adds each agent's own arrival term.)
-
-        The arrival term pays about +Φ for every arrival and charges Φ for every departure,
-        so leaving and coming back earns nothing (the ``arrival`` reward's +2 depends on a
-        first-arrival flag the agent cannot see); being potential-based, it leaves the
-        optimal policy of the goal reward unchanged."""
+        team, the arrival term γ Φ(s') − Φ(s), Φ = ``target_potential`` per agent on the
+        target (``obs`` (N, 2, D) before the step; with ``agent`` :meth:`td_loss` adds each
+        agent's own); ``coverage_bonus`` per newly seen cell; ``on_target_bonus`` per agent on
+        the target. The arrival term pays +Φ per arrival and charges Φ per departure, so
+        leaving and coming back earns nothing; being potential-based, it keeps the optimal
+        policy of the goal reward."""
         cfg = self.cfg
         if cfg.target_potential > 0 and cfg.potential_credit == "team":
             before = self.on_target(obs).sum(axis=1)
@@ -293,11 +291,10 @@ class MultiAgentTrainer:
         self, rollout: Rollout, actions: np.ndarray, messages: np.ndarray, rewards: np.ndarray,
         next_obs: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
     ) -> None:  # fmt: skip
-        """Push the joint transitions that this step of the N episodes completes (see
-        :class:`rollout.NStepWindow`); with each, both agents' observations one step before
-        its start (DIAL). ``next_obs`` is the true next observation also where an episode
-        was cut off (``truncated``). Into a buffer first filled by hand (the ten fields
-        only) it pushes this step's one-step transitions instead."""
+        """Push the joint transitions this step of the N episodes completes
+        (:class:`rollout.NStepWindow`), each with both agents' observations one step before
+        its start (DIAL); ``next_obs`` is the true one also where an episode was cut off.
+        Into a buffer first filled by hand (the ten fields) it pushes one-step transitions."""
         buffer, obs = self.replay_buffer, rollout.obs
         one_step = {
             "state_A": obs[:, 0], "state_B": obs[:, 1],
@@ -370,36 +367,32 @@ class MultiAgentTrainer:
                 target = target - alpha * (q_at_s.max(dim=-1).values - taken)
         q_taken = self.online(obs)[0].gather(-1, batch.actions.unsqueeze(-1))[..., 0]
         per_sample = F.smooth_l1_loss(q_taken, target, reduction="none")  # (2, B)
-        loss = (per_sample * batch.weights).mean(dim=1).sum()
+        if self.cfg.prioritized:  # importance-sampling weights (all 1 without PER)
+            per_sample = per_sample * batch.weights
+        loss = per_sample.mean(dim=1).sum()
         return loss, (q_taken - target).detach(), q_taken.detach()
 
     def splice_messages(
         self, batch: TransitionBatch, obs: torch.Tensor, next_obs: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """DIAL: replace the incoming messages (element w²) of masked ``obs`` and
-        ``next_obs`` (2, B, D) by recomputed ones.
-
-        At time t agent A received the message B sent at t-1, computed from B's
-        observation at t-1 (``prev_obs[1]``). Recomputing it with B's online network,
-        with gradient and with noise on the logit, lets A's TD loss train B's message
-        head (and vice versa). Where no previous observation is stored (an episode start,
-        or a transition pushed by hand) the stored message stays. The message in s' comes
-        from the partner's target network, without gradient, on the partner's observation
-        one step before s' (``last_obs``), as it would have been sent."""
-        m = self.obs_dim - 2
+        ``next_obs`` (2, B, D) by recomputed ones. At time t agent A received the message B
+        sent from its observation at t-1 (``prev_obs[1]``): recomputed by B's online network,
+        with gradient and noise on the logit, it lets A's TD loss train B's message head (and
+        vice versa). Without a stored previous observation (an episode start, a transition
+        pushed by hand) the stored message stays. The message in s' comes from the partner's
+        target network on its observation one step before s' (``last_obs``), no gradient."""
         _, logits = self.online(batch.prev_obs * self.mask)
         if self.cfg.comm_noise > 0:
             noise = torch.randn(logits.shape, generator=self.noise_rng)
             logits = logits + self.cfg.comm_noise * noise
-        has_prev = batch.has_prev.view(1, -1, 1) > 0
-        received = torch.where(has_prev, torch.sigmoid(logits).flip(0), obs[..., m : m + 1])
         with torch.no_grad():
             next_received = torch.sigmoid(self.target(batch.last_obs * self.mask)[1]).flip(0)
-
-        def with_message(x: torch.Tensor, message: torch.Tensor) -> torch.Tensor:
-            return torch.cat([x[..., :m], message, x[..., m + 1 :]], dim=-1)
-
-        return with_message(obs, received), with_message(next_obs, next_received)
+        # (2, B, 1) messages written into the message column (D,): where a previous
+        # observation is stored for s, always for s'.
+        spliced = self.message_column & (batch.has_prev.view(1, -1, 1) > 0)  # (1, B, D)
+        obs = torch.where(spliced, torch.sigmoid(logits).flip(0), obs)
+        return obs, torch.where(self.message_column, next_received, next_obs)
 
     def update_networks(self, batch_size: int) -> float:
         """One gradient step of both agents on a sampled batch; returns the loss (0.0 while

@@ -1,10 +1,8 @@
 """The dynamics, observations and rewards of Problem 2, for N copies at once.
 
-``VectorMultiAgentEnv`` holds the only implementation of the environment, stepping N copies
-with NumPy arrays (the trainer collects experience from 64 copies, the evaluator runs 1000
-test episodes together); ``multi_agent_env`` describes observations and actions and holds
-the course interface. The copies share one map by default; they may also each hold their
-own (``grids``), or draw a new map from a pool at every episode start (``map_pool``).
+``VectorMultiAgentEnv`` is the only implementation of the environment (the trainer collects
+experience from 64 copies, the evaluator runs 1000 test episodes together);
+``multi_agent_env`` describes observations and actions and holds the course interface.
 """
 
 from __future__ import annotations
@@ -15,12 +13,10 @@ from grid_maps import (
     FREE,
     OFF_GRID,
     TARGET,
-    check_choice,
-    check_joint_actions,
-    check_messages,
-    check_obs_window,
     check_seed,
+    check_step,
     choose_maps,
+    is_integer,
     positive_int,
 )
 
@@ -44,9 +40,6 @@ def team_rewards(on_target: np.ndarray, first_arrival: np.ndarray, reward_mode: 
     an agent first reaches the target +2 / -0.1 as above     +2              -0.1
     otherwise                         -0.1                   -0.1            -0.1
     ================================  =====================  ==============  ========
-
-    The trainer learns from ``goal`` plus the arrival term of
-    ``MultiAgentTrainer.learning_rewards``.
     """
     both = on_target[:, 0] & on_target[:, 1]
     if reward_mode == "per_step":
@@ -74,13 +67,10 @@ class VectorMultiAgentEnv:
     (from the same stream as the start cells, map first). The M maps' padded tables are
     stacked, and a flat position indexes the stack (map m's cells are ``m * P .. m * P +
     P - 1``, P padded cells per map), so a step costs what it costs with one map.
-    ``track_coverage`` adds ``info["newly_seen"]`` (N,): grid cells that entered either
-    agent's patch for the first time in the episode on this step.
 
-    One team reward per step, never a per-agent sum: :func:`team_rewards` of
-    ``reward_mode`` (default ``per_step``, the assignment's table; an agent placed on the
-    target has already "arrived"). Both agents on the target terminates the episode;
-    ``truncated`` is set when ``max_steps`` steps pass without termination.
+    One team reward per step, never a per-agent sum: :func:`team_rewards` of ``reward_mode``.
+    Both agents on the target terminates the episode; ``truncated`` is set when ``max_steps``
+    steps pass without termination.
     """
 
     def __init__(
@@ -98,9 +88,13 @@ class VectorMultiAgentEnv:
         track_coverage: bool = False,
     ) -> None:
         self.n_envs = positive_int(n_envs, "n_envs")
-        self.obs_window = check_obs_window(obs_window)
+        if not is_integer(obs_window) or obs_window < 3 or obs_window % 2 == 0:
+            raise ValueError(f"obs_window must be an odd integer >= 3, got {obs_window!r}")
+        self.obs_window = int(obs_window)
         self.max_steps = positive_int(max_steps, "max_steps")
-        self.reward_mode = check_choice(reward_mode, REWARD_MODES, "reward_mode")
+        if reward_mode not in REWARD_MODES:
+            raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {reward_mode!r}")
+        self.reward_mode = reward_mode
         seed = check_seed(seed)
         self.auto_reset = bool(auto_reset)
         self.track_coverage = bool(track_coverage)
@@ -261,9 +255,8 @@ class VectorMultiAgentEnv:
         return np.where(np.take(self._passable, proposed), proposed, flat)
 
     def next_cells(self, rows: np.ndarray, cols: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """Cells (..., 2) reached from passable cells ``(rows, cols)`` by ``actions`` (same
-        shape, ints 0..4; both checked by the caller, ``MultiAgentEnv._apply_action``); a
-        move into a wall or an obstacle stays in place."""
+        """Cells (..., 2) reached from passable cells ``(rows, cols)`` by ``actions`` (same shape,
+        ints 0..4, checked by the caller); a move into a wall or an obstacle stays in place."""
         flat = self._to_flat(rows, cols) + self._bases_for(np.asarray(rows))
         return self._rows_cols(self._move(flat, actions))
 
@@ -302,8 +295,7 @@ class VectorMultiAgentEnv:
         if flat is None:
             maps = self._map_index[rows]
             n_cells = self._free_counts[maps][:, None] - np.array([0, 1])  # A's, then B's
-            # floor(uniform * n) is uniform on 0..n-1 and several times faster than
-            # Generator.integers for small batches.
+            # floor(uniform * n): uniform on 0..n-1, several times faster than Generator.integers
             cells = (self._rng.random((len(rows), 2)) * n_cells).astype(np.int64)
             cells[:, 1] += cells[:, 1] >= cells[:, 0]  # B uniform over the cells A left
             flat = self._start_cells_by_map[maps[:, None], cells]
@@ -317,8 +309,7 @@ class VectorMultiAgentEnv:
             self._mark_seen(rows)
 
     def _mark_seen(self, rows: np.ndarray | slice) -> np.ndarray:
-        """Mark the cells in both agents' patches as seen in copies ``rows``; return how
-        many were new."""
+        """Mark both agents' patch cells as seen in copies ``rows``; return how many were new."""
         local = self._flat[rows] - self._copy_base[rows, None]  # (n, 2)
         patch_cells = (local[:, :, None] + self._patch_offsets).reshape(len(local), -1)
         seen = self._seen[rows]
@@ -331,12 +322,9 @@ class VectorMultiAgentEnv:
 
     def reset(self, seed: int | None = None, positions: np.ndarray | None = None) -> np.ndarray:
         """Start a new episode in every copy; return observations (N, 2, obs_dim) float32.
-
-        ``seed`` reseeds the placement RNG (fixed evaluation episodes). ``positions``
-        (N, 2, 2) places the agents by hand instead: any non-obstacle cells inside the
-        grid, the target included, but not both on the target. An agent starting on the
-        target earns no arrival bonus for it.
-        """
+        ``seed`` reseeds the placement RNG (fixed evaluation episodes); ``positions`` (N, 2, 2)
+        places the agents by hand instead: any non-obstacle cells inside the grid, the target
+        included (no arrival bonus for it), but not both on the target."""
         if check_seed(seed) is not None:
             self._rng = np.random.default_rng(seed)
         every_copy = np.arange(self.n_envs)
@@ -361,11 +349,11 @@ class VectorMultiAgentEnv:
         that finished start a new episode and ``obs`` holds its first observation; ``info``
         describes the state before that reset: ``final_obs`` (N, 2, obs_dim), ``positions``
         (N, 2, 2), ``on_target`` (N, 2) bool, ``steps`` (N,) steps taken in the episode,
-        and with ``track_coverage`` ``newly_seen`` (N,) int64.
-        Without ``auto_reset``, stepping after a copy finished raises ValueError.
+        and with ``track_coverage`` ``newly_seen`` (N,) int64, the grid cells that entered
+        either agent's patch for the first time in the episode. Without ``auto_reset``,
+        stepping after a copy finished raises ValueError.
         """
-        actions = check_joint_actions(actions, self.n_envs)
-        messages = check_messages(messages, self.n_envs)
+        actions, messages = check_step(actions, messages, self.n_envs)
         if self._finished.any():
             raise ValueError(
                 f"episode over in copies {np.flatnonzero(self._finished)}; "
