@@ -8,7 +8,8 @@ RUNTIME_STAMP := $(VENV)/.runtime-installed
 DEV_STAMP     := $(VENV)/.dev-installed
 REPORT_STAMP  := $(VENV)/.report-installed
 
-.PHONY: all problem1 problem2 studies p2-baselines p2-main p2-studies p2-stability p2-memory p2-memory-levers p2-evaluate report \
+.PHONY: all problem1 problem2 studies beyond p2-baselines p2-main p2-studies p2-map-pool \
+	p2-stability p2-memory p2-memory-levers p2-evaluate report \
 	test lint \
 	bench clean
 
@@ -50,10 +51,14 @@ p2-main: $(RUNTIME_STAMP)
 p2-evaluate: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) evaluate.py
 
-## The studies: the reward study (both rewards, 3 modes x 10 seeds, checkpoints chosen by
-## the trained reward's own return, and the exact DP), messages without DIAL, a panel of maps,
-## and agents trained on a pool of 2000 generated maps, tested on 40 held-out maps.
+## The studies of the default task (about 30 min): the main experiment, the reward study
+## (both rewards, 3 modes x 10 seeds, checkpoints chosen by the trained reward's own return,
+## and the exact DP), messages without DIAL, a panel of maps; then their evaluation.
 studies: p2-main p2-studies p2-evaluate
+
+## Beyond the default task (about 90 min): agents on a pool of generated maps, the stability
+## study, agents with memory and the levers tried on them. Run `make p2-evaluate` after.
+beyond: p2-map-pool p2-stability p2-memory p2-memory-levers
 
 p2-studies: $(RUNTIME_STAMP)
 	cd problem2 && for reward in per_step arrival; do \
@@ -65,15 +70,18 @@ p2-studies: $(RUNTIME_STAMP)
 	cd problem2 && for map in 0 1 2 3 4; do \
 		$(PY) train.py --map_seed $$map --num_seeds 3 --overwrite \
 			--output_dir $(P2_STUDIES)/map_panel/map$$map || exit 1; done
-	cd problem2 && $(PY) -m studies.map_pool_study
-	$(MAKE) p2-stability
 
-## Does learning hold its peak? Five settings x 3 modes x training seeds 100-103, last weights.
+## Agents trained on a pool of 2000 generated maps, tested on 40 held-out maps (about 8 min).
+p2-map-pool: $(RUNTIME_STAMP)
+	cd problem2 && $(PY) -m studies.map_pool_study
+
+## Does learning hold its peak? Five settings x 3 modes x training seeds 100-103, last weights
+## (about 12 min).
 p2-stability: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.stability_study --train
 
 ## Agents with memory (GRU) on the map pool: 4 modes x 5 seeds, tested on the held-out maps
-## (39 min; reads the map-pool study's results; not part of `make studies`).
+## (39 min; reads the map-pool study's results).
 p2-memory: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.memory.study
 
