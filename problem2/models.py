@@ -10,6 +10,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import io
+import os
 import warnings
 import zipfile
 from collections.abc import Iterator, Sequence
@@ -21,6 +22,12 @@ import torch
 from batch_io import temporary_path_for
 from grid_maps import positive_int
 from torch import nn
+
+# MKL's conditional numerical reproducibility: matrix products take MKL's AVX2 code path on
+# every x86 CPU with AVX2 (Intel or AMD, AVX-512 or not), so a seed trains the same bytes on
+# any of them. It takes effect at the process's first matrix product, which every entry
+# point makes after importing this module; a value set by the user is kept.
+os.environ.setdefault("MKL_CBWR", "AVX2")
 
 OBSERVATION_DIM = 11  # the default 3 x 3 window: 9 cells, message, distance
 MESSAGE_INDEX = 9  # the partner's last message (w² for a w x w window)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -150,3 +151,36 @@ def test_export_is_byte_identical_across_processes(tmp_path: Path) -> None:
         subprocess.run([sys.executable, "-c", script, str(path)], cwd=problem2, check=True)
     assert paths[0].read_bytes() == paths[1].read_bytes()
     assert load_policy(paths[0])(torch.zeros(11))[0].shape == (5,)
+
+
+PRODUCT = """
+import hashlib, sys
+sys.path.insert(0, sys.argv[1])
+import torch
+{setup}
+torch.set_num_threads(1)
+g = torch.Generator().manual_seed(0)
+a, b = torch.randn(2, 128, 11, generator=g), torch.randn(2, 11, 128, generator=g)
+c = torch.randn(256, 300, generator=g) @ torch.randn(300, 200, generator=g)
+digest = hashlib.sha256((a @ b).numpy().tobytes() + c.numpy().tobytes()).hexdigest()
+print(os.environ.get("MKL_CBWR"), digest)
+"""
+
+
+def test_importing_models_sets_mkl_reproducibility_before_the_first_product() -> None:
+    """A process that imports models before its first matrix product computes the bytes of
+    a process started with MKL_CBWR=AVX2, whatever the CPU's own code path."""
+    problem2 = str(Path(__file__).resolve().parents[2] / "problem2")
+    clean = {k: v for k, v in os.environ.items() if k != "MKL_CBWR"}
+
+    def run(setup: str, env: dict[str, str]) -> str:
+        code = PRODUCT.format(setup="import os\n" + setup)
+        result = subprocess.run(
+            [sys.executable, "-c", code, problem2], env=env, capture_output=True, text=True,
+            check=True,
+        )  # fmt: skip
+        return result.stdout.strip()
+
+    by_import = run("import models", clean)
+    assert by_import.startswith("AVX2 ")
+    assert by_import == run("", clean | {"MKL_CBWR": "AVX2"})
