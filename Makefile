@@ -42,7 +42,7 @@ problem2: p2-baselines p2-evaluate
 p2-baselines: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m analysis.baselines
 
-## The main experiment: 3 modes x 10 seeds of 300 k env steps (about 6 min on 2 cores).
+## The main experiment: 3 modes x 10 seeds of 300 k env steps (about 4 min on 2 cores).
 ## It retrains on purpose, so its runs replace the earlier batch (--overwrite).
 p2-main: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) train.py --overwrite
@@ -51,12 +51,12 @@ p2-main: $(RUNTIME_STAMP)
 p2-evaluate: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) evaluate.py
 
-## The studies of the default task (about 30 min): the main experiment, the reward study
+## The studies of the default task (about 17 min on 2 cores): the main experiment, the reward study
 ## (both rewards, 3 modes x 10 seeds, checkpoints chosen by the trained reward's own return,
 ## and the exact DP), messages without DIAL, a panel of maps; then their evaluation.
 studies: p2-main p2-studies p2-evaluate
 
-## Beyond the default task (about 90 min): agents on a pool of generated maps, the stability
+## Beyond the default task (about 63 min on 2 cores): agents on a pool of generated maps, the stability
 ## study, agents with memory and the levers tried on them. Run `make p2-evaluate` after.
 beyond: p2-map-pool p2-stability p2-memory p2-memory-levers
 
@@ -71,22 +71,22 @@ p2-studies: $(RUNTIME_STAMP)
 		$(PY) train.py --map_seed $$map --num_seeds 3 --overwrite \
 			--output_dir $(P2_STUDIES)/map_panel/map$$map || exit 1; done
 
-## Agents trained on a pool of 2000 generated maps, tested on 40 held-out maps (about 8 min).
+## Agents trained on a pool of 2000 generated maps, tested on 40 held-out maps (about 5 min).
 p2-map-pool: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.map_pool_study
 
 ## Does learning hold its peak? Five settings x 3 modes x training seeds 100-103, last weights
-## (about 12 min).
+## (about 7 min).
 p2-stability: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.stability_study --train
 
 ## Agents with memory (GRU) on the map pool: 4 modes x 5 seeds, tested on the held-out maps
-## (39 min; reads the map-pool study's results).
+## (31 min; reads the map-pool study's results).
 p2-memory: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.memory.study
 
 ## Levers that might make a receiver listen (full mode, training seeds 100-101, validation maps;
-## about 30 min).
+## about 19 min).
 p2-memory-levers: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.memory.levers
 
