@@ -57,7 +57,8 @@ p2-evaluate: $(RUNTIME_STAMP)
 studies: p2-main p2-studies p2-evaluate
 
 ## Beyond the default task (about 63 min on 2 cores): agents on a pool of generated maps, the stability
-## study, agents with memory and the levers tried on them. Run `make p2-evaluate` after.
+## study, agents with memory and the levers tried on them (each writes its own results;
+## `make p2-evaluate` reads only the main experiment and `make studies`' batches).
 beyond: p2-map-pool p2-stability p2-memory p2-memory-levers
 
 p2-studies: $(RUNTIME_STAMP)
