@@ -34,7 +34,7 @@ from vector_env import VectorMultiAgentEnv
 PROBLEM2 = Path(__file__).resolve().parent
 MANIFEST = "manifest.json"
 INTERRUPTED = "interrupted"
-MODE_COLOURS = {"independent": "#1b9e77", "comm": "#d95f02", "full": "#7570b3"}
+MODE_COLOURS = {"independent": "#1b9e77", "comm": "#d95f02", "distance": "#e7298a", "full": "#7570b3"}
 PER_RUN_SETTINGS = ("mode", "seed", "num_seeds", "seeds")  # the manifest lists modes, seeds
 
 

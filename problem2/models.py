@@ -35,6 +35,7 @@ DISTANCE_INDEX = 10  # normalised distance between the agents (w² + 1)
 MASKED_INPUTS = {  # the observation elements each ablation zeroes (3 x 3 window)
     "independent": (MESSAGE_INDEX, DISTANCE_INDEX),  # patch only
     "comm": (DISTANCE_INDEX,),  # patch + message
+    "distance": (MESSAGE_INDEX,),  # patch + distance (beyond the assignment's three)
     "full": (),  # patch + message + distance
 }
 

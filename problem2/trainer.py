@@ -37,7 +37,7 @@ from rollout import (
     evaluate_policy,
     select_best,
 )
-from train_config import TrainConfig
+from train_config import TRAINABLE_MODES, TrainConfig
 from vector_env import VectorMultiAgentEnv
 
 LAST_WEIGHTS = "last_weights"  # subfolder of agent_models/: each run's final weights (keep_best)
@@ -151,7 +151,7 @@ class MultiAgentTrainer:
 
     def __init__(self, env: MapSource, args: Any) -> None:
         cfg = self.cfg = config_from(args)
-        if cfg.mode not in ("independent", "comm", "full"):
+        if cfg.mode not in TRAINABLE_MODES:
             raise ValueError(f"a trainer trains one mode, got mode={cfg.mode!r}")
         self.mode, self.seed, self.env = cfg.mode, cfg.seed, env
         self.name = f"{cfg.mode}_seed{cfg.seed}"
@@ -178,7 +178,8 @@ class MultiAgentTrainer:
         self.optimizer = torch.optim.Adam(self.online_parameters, lr=cfg.lr, fused=True)
         buffer_class = PrioritizedReplayBuffer if cfg.prioritized else ReplayBuffer
         self.replay_buffer = buffer_class(cfg.buffer_size, seed=self.seed)
-        self.dial = cfg.comm_learning == "dial" and self.mode != "independent"
+        # DIAL trains the message where the receiver sees it (comm, full).
+        self.dial = cfg.comm_learning == "dial" and bool(self.mask[self.obs_dim - 2])
         self._batch: tuple[int, int, torch.Tensor, TransitionBatch] | None = None
         self.epsilon = cfg.epsilon_start
         self.env_steps = self.episodes = self.updates = 0

@@ -41,7 +41,7 @@ CHANNEL_INTERVENTIONS = {
     "message": tuple(INTERVENTIONS),
     "distance": ("real", "same_step", "constant_mean"),
 }
-CHANNEL_MODES = {"message": ("comm", "full"), "distance": ("full",)}
+CHANNEL_MODES = {"message": ("comm", "full"), "distance": ("distance", "full")}
 
 
 def received_values(recorded: EpisodeResults, index: int) -> np.ndarray:

@@ -30,9 +30,9 @@ from models import OBSERVATION_DIM, _torchscript_without_deprecation_warnings
 
 PROBLEM2 = Path(__file__).resolve().parent.parent
 DEFAULT_ROOT = PROBLEM2 / "results"
-MODES = ("independent", "comm", "full")
+MODES = ("independent", "comm", "distance", "full")
 NUM_ACTIONS = 5
-SEED_FILE = re.compile(r"^(independent|comm|full)_seed(\d+)_agent_A\.pt$")
+SEED_FILE = re.compile(r"^(independent|comm|distance|full)_seed(\d+)_agent_A\.pt$")
 MANIFEST = "manifest.json"
 PROBE_ROWS = 256  # observations each loaded model is checked on before any evaluation
 DEFAULT_SETTINGS = {
