@@ -12,6 +12,7 @@ import pytest
 import torch
 from analysis.runs import load_policy
 from models import (
+    MASKED_INPUTS,
     OBSERVATION_MASKS,
     AgentDQN,
     DuelingDQN,
@@ -62,7 +63,7 @@ def test_logit_method_matches_forward_and_trains_the_message_head(network_class)
 
 def test_observation_masks() -> None:
     ones = np.ones(11, dtype=np.float32)
-    expected = {"independent": [9, 10], "comm": [10], "full": []}
+    expected = {"independent": [9, 10], "comm": [10], "distance": [9], "full": []}
     assert set(OBSERVATION_MASKS) == set(expected)
     for mode, zeroed in expected.items():
         mask = observation_mask(mode)
@@ -74,7 +75,7 @@ def test_observation_masks() -> None:
 
 
 @pytest.mark.parametrize("network_class", [AgentDQN, DuelingDQN])
-@pytest.mark.parametrize("mode", ["independent", "comm", "full"])
+@pytest.mark.parametrize("mode", ["independent", "comm", "distance", "full"])
 def test_export_round_trip_applies_the_mask(tmp_path: Path, network_class, mode: str) -> None:
     torch.manual_seed(1)
     network = network_class(hidden_dim=128)
@@ -90,9 +91,9 @@ def test_export_round_trip_applies_the_mask(tmp_path: Path, network_class, mode:
     single_q, single_comm = policy(obs[0])
     assert single_q.shape == (5,) and single_comm.shape == (1,)
     assert torch.allclose(single_q, expected_q[0])
-    if mode != "full":  # masked elements cannot change the output
+    for hidden in MASKED_INPUTS[mode]:  # masked elements cannot change the output
         changed = obs.clone()
-        changed[:, 10] += 5.0
+        changed[:, hidden] += 5.0
         assert torch.allclose(policy(changed)[0], q_values)
 
 
