@@ -7,6 +7,7 @@ times) is the only output that differs between identical reruns.
 
 from __future__ import annotations
 
+import ast
 import csv
 import hashlib
 import json
@@ -34,7 +35,12 @@ from vector_env import VectorMultiAgentEnv
 PROBLEM2 = Path(__file__).resolve().parent
 MANIFEST = "manifest.json"
 INTERRUPTED = "interrupted"
-MODE_COLOURS = {"independent": "#1b9e77", "comm": "#d95f02", "distance": "#e7298a", "full": "#7570b3"}
+MODE_COLOURS = {
+    "independent": "#1b9e77",
+    "comm": "#d95f02",
+    "distance": "#e7298a",
+    "full": "#7570b3",
+}
 PER_RUN_SETTINGS = ("mode", "seed", "num_seeds", "seeds")  # the manifest lists modes, seeds
 
 
@@ -138,9 +144,12 @@ def train_one(
         | {"output_dir": str(models_dir.parent)}
     )
     env = VectorMultiAgentEnv(  # the map: the trainer reads its grid, window and time limit
-        1, grid_size=cfg.grid_shape(), max_steps=cfg.max_steps, seed=cfg.map_seed,
+        1,
+        grid_size=cfg.grid_shape(),
+        max_steps=cfg.max_steps,
+        seed=cfg.map_seed,
         reward_mode=cfg.reward_mode,
-    )  # fmt: skip
+    )
     trainer = MultiAgentTrainer(env, run_cfg)
     # train() appends each log row to its CSV file as it is measured and saves the models.
     trainer.models_dir, trainer.logs_dir = models_dir, logs_dir
@@ -183,7 +192,11 @@ def run_experiments(cfg: TrainConfig) -> list[dict[str, Any]]:
         shutil.rmtree(staging, ignore_errors=True)
         models_dir.mkdir(parents=True)
         logs_dir.mkdir()
-        finals = train_batch(cfg, models_dir, logs_dir)
+        save_map(models_dir / "map.json", generate_map(cfg.grid_shape(), cfg.map_seed))
+        write_json_atomic(models_dir / "hyperparameters.json", cfg.hyperparameters())
+        jobs = [(cfg, m, s, models_dir, logs_dir) for m in cfg.run_modes() for s in cfg.run_seeds()]
+        finals = run_jobs(train_one, jobs, cfg.workers, ProgressLine(len(jobs), cfg.total_steps))
+        write_batch_records(cfg, finals, models_dir, logs_dir)
         install(staging, root)
     except KeyboardInterrupt:  # keep what it measured (no manifest: no reader takes it for results)
         if staging.is_dir():
@@ -198,16 +211,10 @@ def run_experiments(cfg: TrainConfig) -> list[dict[str, Any]]:
     return finals
 
 
-def train_batch(cfg: TrainConfig, models_dir: Path, logs_dir: Path) -> list[dict[str, Any]]:
-    """Every run, then the best pairs, the curves, timing and (last) the manifest."""
-    save_map(models_dir / "map.json", generate_map(cfg.grid_shape(), cfg.map_seed))
-    write_json_atomic(models_dir / "hyperparameters.json", cfg.hyperparameters())
-    jobs = [(mode, seed) for mode in cfg.run_modes() for seed in cfg.run_seeds()]
-    progress = ProgressLine(len(jobs), cfg.total_steps)
-    finals = run_jobs(
-        train_one, [(cfg, mode, seed, models_dir, logs_dir) for mode, seed in jobs], cfg.workers,
-        progress,
-    )  # fmt: skip
+def write_batch_records(
+    cfg: TrainConfig, finals: list[dict[str, Any]], models_dir: Path, logs_dir: Path
+) -> None:
+    """After every run: timing, the best pair of each mode, the curves and (last) the manifest."""
     write_json_atomic(
         logs_dir / "timing.json",
         {run_name(f["mode"], f["seed"]): round(f.pop("seconds"), 1) for f in finals},
@@ -227,7 +234,6 @@ def train_batch(cfg: TrainConfig, models_dir: Path, logs_dir: Path) -> list[dict
     )
     plot_training_curves(logs_dir, cfg.run_modes(), cfg.run_seeds(), title)
     write_json_atomic(models_dir / MANIFEST, manifest(cfg, finals, best, models_dir))
-    return finals
 
 
 SELECTION_MEASURES = ("success_rate", "mean_steps_to_success", "mean_return")
@@ -265,13 +271,27 @@ def model_listing(files: dict[str, str], models_dir: Path) -> dict[str, dict[str
 
 
 def code_version() -> str:
-    """sha256 over problem2/*.py in name order: each file's name, a NUL byte, its UTF-8
-    source with line ends normalised to \\n, a NUL byte."""
+    """sha256 of the code of problem2/*.py in name order: each file's name, a NUL byte, the
+    dump of its syntax tree without docstrings, a NUL byte. Comments, docstrings and layout
+    do not count, so a documentation edit leaves the version (and every manifest) as it is."""
     digest = hashlib.sha256()
     for path in sorted(PROBLEM2.glob("*.py"), key=lambda p: p.name):
-        source = path.read_bytes().replace(b"\r\n", b"\n")
-        digest.update(path.name.encode("utf-8") + b"\0" + source + b"\0")
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in ast.walk(tree):  # docstrings, also those after a dataclass field
+            body = getattr(node, "body", None)
+            if isinstance(body, list) and any(is_docstring(s) for s in body):
+                node.body = [s for s in body if not is_docstring(s)] or [ast.Pass()]
+        digest.update(path.name.encode("utf-8") + b"\0" + ast.dump(tree).encode() + b"\0")
     return digest.hexdigest()
+
+
+def is_docstring(statement: ast.stmt) -> bool:
+    """Whether ``statement`` is a string literal standing alone (a docstring)."""
+    return (
+        isinstance(statement, ast.Expr)
+        and isinstance(statement.value, ast.Constant)
+        and isinstance(statement.value.value, str)
+    )
 
 
 def install(staging: Path, root: Path) -> None:

@@ -111,78 +111,63 @@ class DuelingDQN(MessagingQNetwork):
         return q_values, self.message_head(hidden)
 
 
-class PairedQNetworks(nn.Module):
-    """Both agents' networks as one stacked module: each agent keeps its own weights
-    (independent learners), and one batched matrix product evaluates both.
+class StackedLinear(nn.Module):
+    """Two agents' ``nn.Linear`` layers as one: ``weight`` [2, out, in], ``bias`` [2, 1, out];
+    ``x`` [2, B, in] (A's inputs, then B's) -> [2, B, out], one batched matrix product."""
 
-    Parameters, agent axis first: ``hidden_weight`` [2, H, D], ``hidden_bias`` [2, 1, H],
-    ``head_weight`` [2, K, H], ``head_bias`` [2, 1, K]; the K head rows are the Q-values
-    (advantages for the dueling form), the state value (dueling only), the message logit.
-    :meth:`agent` turns one agent's slice back into a plain :class:`AgentDQN` /
-    :class:`DuelingDQN` with identical outputs (for export and the one-network methods).
+    def __init__(self, layers: Sequence[nn.Linear]) -> None:
+        super().__init__()
+        self.weight = nn.Parameter(torch.stack([layer.weight.detach() for layer in layers]))
+        self.bias = nn.Parameter(torch.stack([layer.bias.detach() for layer in layers])[:, None])
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.baddbmm(self.bias, x, self.weight.transpose(1, 2))
+
+
+class PairedQNetworks(nn.Module):
+    """Both agents' networks as one module, for training: each agent keeps its own weights
+    (independent learners) and one batched pass evaluates both.
+
+    ``stacked`` is an :class:`AgentDQN` (or :class:`DuelingDQN`) whose every layer is a
+    :class:`StackedLinear` of the two agents' layers, so the forward that runs is the agent
+    network's own ``forward_with_logit``: the math is written once. :meth:`agent` turns one
+    agent's slice back into a plain network with identical outputs (for export).
     """
 
     def __init__(
         self, input_dim: int = 11, hidden_dim: int = 64, num_actions: int = 5, dueling: bool = False
     ) -> None:
         super().__init__()
-        self.input_dim, self.hidden_dim, self.num_actions = input_dim, hidden_dim, num_actions
-        self.dueling = dueling
-        self.head_dim = num_actions + (2 if dueling else 1)
-        self.hidden_weight = nn.Parameter(torch.empty(2, hidden_dim, input_dim))
-        self.hidden_bias = nn.Parameter(torch.empty(2, 1, hidden_dim))
-        self.head_weight = nn.Parameter(torch.empty(2, self.head_dim, hidden_dim))
-        self.head_bias = nn.Parameter(torch.empty(2, 1, self.head_dim))
-        # The initial weights of two interface networks (PyTorch's nn.Linear default).
-        self.load_agents([self._network_class()(input_dim, hidden_dim, num_actions) for _ in "AB"])
-
-    def _network_class(self) -> type[MessagingQNetwork]:
-        return DuelingDQN if self.dueling else AgentDQN
+        self.network_class = DuelingDQN if dueling else AgentDQN
+        self.sizes = (input_dim, hidden_dim, num_actions)
+        # The initial weights are two interface networks' (PyTorch's nn.Linear default).
+        agents = [self.network_class(*self.sizes) for _ in "AB"]
+        self.stacked = copy.deepcopy(agents[0])
+        for name, _ in agents[0].named_children():
+            setattr(self.stacked, name, StackedLinear([getattr(a, name) for a in agents]))
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``x`` [2, B, D] (A's inputs, then B's) -> (Q [2, B, A], message logit [2, B, 1])."""
-        hidden = torch.baddbmm(self.hidden_bias, x, self.hidden_weight.transpose(1, 2)).relu_()
-        heads = torch.baddbmm(self.head_bias, hidden, self.head_weight.transpose(1, 2))
-        logits = heads[..., -1:]
-        if not self.dueling:
-            return heads[..., : self.num_actions], logits
-        advantages = heads[..., : self.num_actions]
-        value = heads[..., self.num_actions : self.num_actions + 1]
-        return value + advantages - advantages.mean(dim=-1, keepdim=True), logits
+        return self.stacked.forward_with_logit(x)
 
     @torch.no_grad()
     def agent(self, index: int) -> MessagingQNetwork:
         """Agent ``index``'s network as a standalone AgentDQN / DuelingDQN (a copy)."""
-        network = self._network_class()(self.input_dim, self.hidden_dim, self.num_actions)
-        network.hidden.weight.copy_(self.hidden_weight[index])
-        network.hidden.bias.copy_(self.hidden_bias[index, 0])
-        for head, rows in self._head_rows(network).items():
-            head.weight.copy_(self.head_weight[index, rows])
-            head.bias.copy_(self.head_bias[index, 0, rows])
+        network = self.network_class(*self.sizes)
+        for name, layer in network.named_children():
+            stacked = getattr(self.stacked, name)
+            layer.weight.copy_(stacked.weight[index])
+            layer.bias.copy_(stacked.bias[index, 0])
         return network
 
     @torch.no_grad()
-    def load_agents(self, networks: list[MessagingQNetwork]) -> None:
+    def load_agents(self, networks: Sequence[MessagingQNetwork]) -> None:
         """Copy two standalone networks into the stacked weights."""
         for index, network in enumerate(networks):
-            self.hidden_weight[index].copy_(network.hidden.weight)
-            self.hidden_bias[index, 0].copy_(network.hidden.bias)
-            for head, rows in self._head_rows(network).items():
-                self.head_weight[index, rows].copy_(head.weight)
-                self.head_bias[index, 0, rows].copy_(head.bias)
-
-    def _head_rows(self, network: MessagingQNetwork) -> dict[nn.Linear, slice]:
-        """Which rows of the stacked head belong to which head of ``network``."""
-        actions = slice(0, self.num_actions)
-        message = slice(self.head_dim - 1, self.head_dim)
-        if self.dueling:
-            value = slice(self.num_actions, self.num_actions + 1)
-            return {
-                network.advantage_head: actions,
-                network.value_head: value,
-                network.message_head: message,
-            }
-        return {network.q_head: actions, network.message_head: message}
+            for name, layer in network.named_children():
+                stacked = getattr(self.stacked, name)
+                stacked.weight[index].copy_(layer.weight)
+                stacked.bias[index, 0].copy_(layer.bias)
 
 
 @contextmanager

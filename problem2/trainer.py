@@ -4,12 +4,13 @@ Each agent has its own network (a Q head over 5 moves and a sigmoid message head
 learns from a shared replay of joint transitions with a Huber TD loss summed over both
 agents, target networks, a Double-DQN target and gradient clipping. The message is trained
 DIAL-style, through the receiver's TD loss (:meth:`~MultiAgentTrainer.splice_messages`).
-The ablation modes differ only in the input mask (:func:`apply_observation_mask`), used
-wherever a network sees an observation.
+The ablation modes differ only in the input mask (``models.observation_mask``), applied
+wherever a network sees an observation: acting, both TD passes, the exported models.
 
-:class:`MultiAgentTrainer` reads in DQN order: act (ε-greedy) → step → store → update
-(:meth:`~MultiAgentTrainer.td_loss` → ``backward()`` → ``clip_grad_norm_`` → Adam) →
-target sync → schedules → evaluate and log.
+:meth:`MultiAgentTrainer.train` is the loop, in DQN order: act (ε-greedy) → step → store
+(:meth:`~MultiAgentTrainer.collect`) → update (:meth:`~MultiAgentTrainer.update_networks`:
+``td_loss`` → ``backward()`` → clip → Adam → target sync) → schedules → evaluate and log.
+The course skeleton's methods are in ``course_skeleton.py``.
 """
 
 from __future__ import annotations
@@ -18,13 +19,14 @@ import csv
 import math
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 import torch
 import torch.nn.functional as F
+from course_skeleton import CourseSkeletonAPI, config_from
 from grid_maps import NUM_ACTIONS, TARGET, training_maps, validation_maps
 from models import PairedQNetworks, export_policy, observation_mask
 from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
@@ -37,15 +39,26 @@ from rollout import (
     evaluate_policy,
     select_best,
 )
-from train_config import TRAINABLE_MODES, TrainConfig
+from train_config import TRAINABLE_MODES
 from vector_env import VectorMultiAgentEnv
 
 LAST_WEIGHTS = "last_weights"  # subfolder of agent_models/: each run's final weights (keep_best)
 LOG_FIELDS = (
-    "env_steps", "episodes", "updates", "epsilon", "loss", "mean_q", "train_return",
-    "train_success", "eval_success_greedy", "eval_success_eps", "eval_return_greedy",
-    "eval_return_eps", "eval_steps_greedy", "eval_steps_eps",
-)  # fmt: skip
+    "env_steps",
+    "episodes",
+    "updates",
+    "epsilon",
+    "loss",
+    "mean_q",
+    "train_return",
+    "train_success",
+    "eval_success_greedy",
+    "eval_success_eps",
+    "eval_return_greedy",
+    "eval_return_eps",
+    "eval_steps_greedy",
+    "eval_steps_eps",
+)
 
 
 def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndarray | torch.Tensor:
@@ -56,22 +69,6 @@ def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndar
     if isinstance(obs, torch.Tensor):
         return obs * torch.tensor(mask)
     return np.asarray(obs, dtype=np.float32) * mask
-
-
-def config_from(args: Any) -> TrainConfig:
-    """A TrainConfig as given (validated by its maker: the CLI, ``run_experiments``), or
-    one built and validated from any namespace, e.g. the course skeleton's (``mode``
-    missing or ``all`` means ``full``; output under ``./results``; unknown attributes and
-    ``grid_size`` ignored: the map comes from the environment)."""
-    if isinstance(args, TrainConfig):
-        return args
-    known = {f.name for f in fields(TrainConfig)}
-    settings = {k: v for k, v in vars(args).items() if k in known and v is not None}
-    if settings.get("mode", "all") == "all":
-        settings["mode"] = "full"
-    settings.setdefault("output_dir", "results")  # like the skeleton
-    settings.pop("grid_size", None)  # the trainer trains on env's grid
-    return TrainConfig(**settings).validate()
 
 
 class MapSource(Protocol):
@@ -104,7 +101,7 @@ class TransitionBatch:
     def of_rows(cls, rows: torch.Tensor, layout: dict[str, slice], obs_dim: int) -> TransitionBatch:
         """Views of ``rows`` (B, row width) in the replay buffer's ``layout``. Fields the
         rows lack (transitions pushed by hand) are zeros, ``last_obs`` then ``obs``.
-        ``actions`` is int64, so a copy that :meth:`MultiAgentTrainer.sample` refills."""
+        ``actions`` is int64, so a copy that :meth:`MultiAgentTrainer.sample` fills."""
         b = rows.shape[0]
 
         def pair(name_a: str) -> torch.Tensor:  # columns of X_A then X_B -> (2, B, D)
@@ -118,12 +115,17 @@ class TransitionBatch:
 
         obs = pair("state_A")
         return cls(
-            obs=obs, next_obs=pair("next_state_A"),
+            obs=obs,
+            next_obs=pair("next_state_A"),
             last_obs=pair("last_state_A") if "last_state_A" in layout else obs,
-            prev_obs=pair("prev_state_A"), has_prev=column("has_prev"),
-            actions=torch.zeros(2, b, dtype=torch.int64), reward=column("reward"),
-            done=column("done"), discount=column("discount"), weights=torch.ones(b),
-        )  # fmt: skip
+            prev_obs=pair("prev_state_A"),
+            has_prev=column("has_prev"),
+            actions=torch.zeros(2, b, dtype=torch.int64),
+            reward=column("reward"),
+            done=column("done"),
+            discount=column("discount"),
+            weights=torch.ones(b),
+        )
 
 
 @dataclass
@@ -137,7 +139,7 @@ class Checkpoint:
     state: dict[str, torch.Tensor]
 
 
-class MultiAgentTrainer:
+class MultiAgentTrainer(CourseSkeletonAPI):
     """Trains agents A and B of one ablation mode with one seed.
 
     Args:
@@ -176,26 +178,52 @@ class MultiAgentTrainer:
         self.target_parameters = list(self.target.parameters())
         self.online_parameters = list(self.online.parameters())  # both agents' weights
         self.optimizer = torch.optim.Adam(self.online_parameters, lr=cfg.lr, fused=True)
-        buffer_class = PrioritizedReplayBuffer if cfg.prioritized else ReplayBuffer
-        self.replay_buffer = buffer_class(cfg.buffer_size, seed=self.seed)
+        if cfg.prioritized:  # β reaches 1 at the run's last planned update
+            self.replay_buffer = PrioritizedReplayBuffer(
+                cfg.buffer_size, beta_steps=self.planned_updates(), seed=self.seed
+            )
+        else:
+            self.replay_buffer = ReplayBuffer(cfg.buffer_size, seed=self.seed)
         # DIAL trains the message where the receiver sees it (comm, full).
         self.dial = cfg.comm_learning == "dial" and bool(self.mask[self.obs_dim - 2])
-        self._batch: tuple[int, int, torch.Tensor, TransitionBatch] | None = None
         self.epsilon = cfg.epsilon_start
         self.env_steps = self.episodes = self.updates = 0
-        self._update_credit = 0.0  # gradient updates due and not yet made
-        self.last_td_errors: torch.Tensor | None = None  # (2, B) of the last update
-        self.last_indices: np.ndarray | None = None  # replay slots of the last update
         self.recent_returns: deque[float] = deque(maxlen=100)
         self.recent_successes: deque[bool] = deque(maxlen=100)
         self.log: list[dict[str, Any]] = []
         self._losses: list[float] = []
         self._mean_qs: list[float] = []
         self.checkpoints: list[Checkpoint] = []  # one per periodic evaluation
-        self._episode_rollout: Rollout | None = None  # for train_episode()
         self._evaluation_envs: dict[int, VectorMultiAgentEnv] = {}  # by number of copies
 
-    # ------------------------------------------------------------------ 1-2. act and step
+    # ------------------------------------------------------------------ the loop
+    def train(self, progress: Callable[[dict[str, Any]], None] | None = None) -> list[dict]:
+        """Collect with the vectorised environments and learn until the budget is spent;
+        evaluate every ``eval_interval`` env steps (validation episodes), keep the best
+        weights, save the models and the log. Returns the log rows."""
+        cfg, rollout = self.cfg, self.rollout
+        self.start_log()
+        next_evaluation = 0
+        while not self.budget_spent():
+            if self.env_steps >= next_evaluation:  # 6. Evaluate and log.
+                self.evaluate_and_log(progress)
+                next_evaluation += cfg.eval_interval
+            # 1. Act ε-greedily, 2. step the N environment copies, 3. store the transitions.
+            _, _, finished = self.collect(rollout)
+            # 4. Update both agents' networks (TD loss, backward, clip, Adam), then the targets.
+            if self.env_steps >= cfg.learning_starts:
+                for _ in range(cfg.updates_per_step):
+                    self.update_networks(cfg.batch_size)
+            # 5. Schedules: ε and the learning rate.
+            self.update_schedules(int(finished.sum()))
+        self.evaluate_and_log(progress)
+        if cfg.keep_best:  # the weights the run ended with stay beside the selected ones
+            self.save_models(self.models_dir / LAST_WEIGHTS)
+            self.online.load_state_dict(self.best_checkpoint().state)
+        self.save_models()
+        return self.log
+
+    # ------------------------------------------------------------------ the environments
     vector_env_class: type[VectorMultiAgentEnv] = VectorMultiAgentEnv  # a study may extend it
 
     def make_vector_env(
@@ -211,22 +239,19 @@ class MultiAgentTrainer:
             maps = dict(map_pool=training_maps(cfg.map_pool, size) if pool is None else pool)
             maps["track_coverage"] = not validation and cfg.coverage_bonus > 0
         return self.vector_env_class(
-            n_envs, grid=None if maps else self.env.grid, obs_window=self.env.obs_window,
-            max_steps=self.env.max_steps, seed=seed, reward_mode=cfg.reward_mode, **maps,
-        )  # fmt: skip
+            n_envs,
+            grid=None if maps else self.env.grid,
+            obs_window=self.env.obs_window,
+            max_steps=self.env.max_steps,
+            seed=seed,
+            reward_mode=cfg.reward_mode,
+            **maps,
+        )
 
     def start_rollout(self, n_envs: int, seed: int | None) -> Rollout:
         return Rollout.start(self.make_vector_env(n_envs, seed), self.cfg.n_step, self.cfg.gamma)
 
-    @property
-    def network_A(self) -> torch.nn.Module:
-        """Agent A's network as a standalone AgentDQN / DuelingDQN (a snapshot)."""
-        return self.online.agent(0)
-
-    @property
-    def network_B(self) -> torch.nn.Module:
-        return self.online.agent(1)
-
+    # ------------------------------------------------------------------ 1-3. act, step, store
     def act(
         self, obs: np.ndarray, epsilon: float, rng: np.random.Generator, noisy_messages: bool
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -243,18 +268,6 @@ class MultiAgentTrainer:
             explore = rng.random(actions.shape) < epsilon
             actions = np.where(explore, rng.integers(0, NUM_ACTIONS, actions.shape), actions)
         return actions, messages
-
-    def select_action(
-        self, state: np.ndarray, network: torch.nn.Module, epsilon: float
-    ) -> tuple[int, float]:
-        """ε-greedy action and message of one agent: ``state`` (obs_dim,) raw observation."""
-        masked = torch.as_tensor(state, dtype=torch.float32) * self.mask
-        with torch.no_grad():
-            q_values, comm = network(masked.unsqueeze(0))
-        action = int(q_values.argmax(dim=1).item())
-        if self.rng.random() < epsilon:
-            action = int(self.rng.integers(NUM_ACTIONS))
-        return action, float(comm.item())
 
     def policy(self, epsilon: float = 0.0, seed: int = EVAL_SEED) -> PolicyFn:
         """The current greedy/ε-greedy policy as a function for :func:`rollout.run_episodes`."""
@@ -287,55 +300,107 @@ class MultiAgentTrainer:
         NumPy or torch) shows it."""
         return obs[..., self.env.obs_window**2 // 2] == TARGET
 
-    # ------------------------------------------------------------------ 3. store
+    def collect(self, rollout: Rollout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One step of the N environment copies of ``rollout``: act, step, store. Returns the
+        returns and successes of the episodes that ended, and which copies finished (N,)."""
+        actions, messages = self.act(rollout.obs, self.epsilon, self.rng, noisy_messages=True)
+        next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
+        # Only "both on target" is terminal; the time limit is a cut-off.
+        learned = self.learning_rewards(rewards, info, rollout.obs)
+        self.store(rollout, actions, messages, learned, info["final_obs"], terminated, truncated)
+        finished = terminated | truncated
+        returns = rollout.advance(next_obs, rewards, finished)
+        self.env_steps += rollout.env.n_envs
+        self.episodes += int(finished.sum())
+        self.recent_returns.extend(returns.tolist())
+        self.recent_successes.extend(terminated[finished].tolist())
+        return returns, terminated[finished], finished
+
     def store(
-        self, rollout: Rollout, actions: np.ndarray, messages: np.ndarray, rewards: np.ndarray,
-        next_obs: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
-    ) -> None:  # fmt: skip
+        self,
+        rollout: Rollout,
+        actions: np.ndarray,
+        messages: np.ndarray,
+        rewards: np.ndarray,
+        next_obs: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+    ) -> None:
         """Push the joint transitions this step of the N episodes completes
         (:class:`rollout.NStepWindow`), each with both agents' observations one step before
         its start (DIAL); ``next_obs`` is the true one also where an episode was cut off.
         Into a buffer first filled by hand (the ten fields) it pushes one-step transitions."""
         buffer, obs = self.replay_buffer, rollout.obs
         one_step = {
-            "state_A": obs[:, 0], "state_B": obs[:, 1],
-            "action_A": actions[:, 0], "action_B": actions[:, 1],
-            "comm_A": messages[:, 0], "comm_B": messages[:, 1],
-        }  # fmt: skip
+            "state_A": obs[:, 0],
+            "state_B": obs[:, 1],
+            "action_A": actions[:, 0],
+            "action_B": actions[:, 1],
+            "comm_A": messages[:, 0],
+            "comm_B": messages[:, 1],
+        }
         if len(buffer) and "discount" not in buffer.field_names:
             buffer.push_batch(
-                **one_step, reward=rewards, next_state_A=next_obs[:, 0],
-                next_state_B=next_obs[:, 1], done=terminated,
-            )  # fmt: skip
+                **one_step,
+                reward=rewards,
+                next_state_A=next_obs[:, 0],
+                next_state_B=next_obs[:, 1],
+                done=terminated,
+            )
             return
         start = one_step | {
-            "prev_state_A": rollout.prev_obs[:, 0], "prev_state_B": rollout.prev_obs[:, 1],
+            "prev_state_A": rollout.prev_obs[:, 0],
+            "prev_state_B": rollout.prev_obs[:, 1],
             "has_prev": rollout.has_prev,
-        }  # fmt: skip
+        }
         finished = terminated | truncated
         complete = rollout.window.add(start, rewards, next_obs, obs, terminated, finished)
         if len(complete["reward"]):  # the environment checked the actions and messages
             buffer.push_batch(validate=False, **complete)
 
     # ------------------------------------------------------------------ 4. update
-    def sample(self, batch_size: int) -> TransitionBatch:
-        """A batch from the replay buffer: its rows gathered (one copy) into a tensor that
-        is reused from update to update and that the batch's fields view."""
+    def update_networks(self, batch_size: int) -> float:
+        """One gradient step of both agents on a replay batch, then the target networks:
+        with ``target_update`` 0 a soft update θ⁻ ← θ⁻ + τ (θ − θ⁻), otherwise a hard copy
+        every ``target_update`` updates. Returns the loss (0.0, and no update, while the
+        buffer holds fewer than ``batch_size`` transitions)."""
+        cfg = self.cfg
+        if len(self.replay_buffer) < batch_size:
+            return 0.0
+        batch, slots = self.sample(batch_size)
+        loss, td_errors, q_taken = self.td_loss(batch)
+        self.optimizer.zero_grad()
+        loss.backward()
+        if cfg.share_weights:  # one shared parameter: the sum of both agents' gradients
+            for p in self.online_parameters:  # each (2, ...), agent axis first
+                if p.grad is not None:  # None: a message head no loss reaches (independent)
+                    p.grad.copy_(p.grad.sum(dim=0, keepdim=True).expand_as(p.grad))
+        torch.nn.utils.clip_grad_norm_(self.online_parameters, cfg.max_grad_norm, foreach=True)
+        self.optimizer.step()
+        self.updates += 1
+        if cfg.prioritized:  # one priority per joint transition: the larger |δ| of the two
+            priorities = td_errors.abs().max(dim=0).values.numpy() + 1e-6
+            self.replay_buffer.update_priorities(slots, priorities)
+        self.sync_target()
+        loss_value = float(loss.detach())
+        self._losses.append(loss_value)
+        self._mean_qs.append(float(q_taken.mean()))
+        return loss_value
+
+    def sample(self, batch_size: int) -> tuple[TransitionBatch, np.ndarray]:
+        """A batch from the replay buffer, its rows gathered (one copy) into one tensor that
+        the batch's fields view, and the replay slots (B,) it came from."""
         layout = self.replay_buffer.layout
-        if self._batch is None or self._batch[:2] != (batch_size, len(layout)):
-            rows = torch.zeros(batch_size, max(columns.stop for columns in layout.values()))
-            self._batch = (batch_size, len(layout), rows, TransitionBatch.of_rows(
-                rows, layout, self.obs_dim
-            ))  # fmt: skip
-        _, _, rows, batch = self._batch
-        _, weights, self.last_indices = self.replay_buffer.sample_rows(batch_size, rows.numpy())
+        rows = torch.empty(batch_size, max(columns.stop for columns in layout.values()))
+        batch = TransitionBatch.of_rows(rows, layout, self.obs_dim)
+        _, weights, slots = self.replay_buffer.sample_rows(batch_size, rows.numpy())
         first = layout["action_A"].start
         batch.actions.copy_(rows[:, first : first + 2].T)  # A's column then B's
         if "discount" not in layout:  # transitions pushed by hand: d = γ (1 − done)
             batch.discount.copy_(self.cfg.gamma * (1.0 - batch.done))
         if self.cfg.prioritized:
             batch.weights.copy_(torch.from_numpy(weights))
-        return batch
+        return batch, slots
 
     def td_loss(self, batch: TransitionBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The Huber TD loss, summed over both agents (the assignment's L = L_A + L_B).
@@ -395,48 +460,18 @@ class MultiAgentTrainer:
         obs = torch.where(spliced, torch.sigmoid(logits).flip(0), obs)
         return obs, torch.where(self.message_column, next_received, next_obs)
 
-    def update_networks(self, batch_size: int) -> float:
-        """One gradient step of both agents on a sampled batch; returns the loss (0.0 while
-        the buffer holds fewer than ``batch_size`` transitions)."""
-        if len(self.replay_buffer) < batch_size:
-            return 0.0
-        loss, self.last_td_errors, q_taken = self.td_loss(self.sample(batch_size))
-        self.optimizer.zero_grad()
-        loss.backward()
-        if self.cfg.share_weights:  # one shared parameter: the sum of both agents' gradients
-            for p in self.online_parameters:  # each (2, ...), agent axis first
-                p.grad.copy_(p.grad.sum(dim=0, keepdim=True).expand_as(p.grad))
-        torch.nn.utils.clip_grad_norm_(self.online_parameters, self.cfg.max_grad_norm, foreach=True)
-        self.optimizer.step()
-        self.updates += 1
-        loss_value = float(loss.detach())
-        self._losses.append(loss_value)
-        self._mean_qs.append(float(q_taken.mean()))
-        return loss_value
-
-    # ------------------------------------------------------------------ 5. target sync
-    def update_and_sync_target(self) -> None:
-        """One gradient update; with PER, the priorities it measured (one per joint
-        transition: the larger |δ| of the two agents); then the target networks: with
-        ``target_update`` 0 a soft update θ⁻ ← θ⁻ + τ (θ − θ⁻), otherwise a hard copy of
-        the online networks every ``target_update`` updates."""
-        cfg, updates_before = self.cfg, self.updates
-        self.update_networks(cfg.batch_size)
-        if self.updates == updates_before:  # fewer transitions than a batch: no update
-            return
-        if cfg.prioritized:
-            priorities = self.last_td_errors.abs().max(dim=0).values.numpy() + 1e-6
-            self.replay_buffer.update_priorities(self.last_indices, priorities)
-        if cfg.target_update == 0:
+    def sync_target(self) -> None:
+        """Move the target networks towards the online ones (soft) or copy them when due."""
+        if self.cfg.target_update == 0:
             with torch.no_grad():
                 for target, online in zip(
                     self.target_parameters, self.online_parameters, strict=True
                 ):
-                    target.lerp_(online, cfg.target_tau)
-        elif self.updates % cfg.target_update == 0:
+                    target.lerp_(online, self.cfg.target_tau)
+        elif self.updates % self.cfg.target_update == 0:
             self.target.load_state_dict(self.online.state_dict())
 
-    # ------------------------------------------------------------------ 6. schedules
+    # ------------------------------------------------------------------ 5. schedules
     def progress(self) -> float:
         """Fraction of the training budget spent, in [0, 1]."""
         cfg = self.cfg
@@ -470,75 +505,22 @@ class MultiAgentTrainer:
             return self.episodes >= cfg.num_episodes
         return self.env_steps >= cfg.total_steps
 
-    # ------------------------------------------------------------------ the algorithm
-    def step(self, rollout: Rollout, updates: float) -> tuple[np.ndarray, np.ndarray]:
-        """One step of the N environment copies of ``rollout``, learning as DQN does; then
-        ``updates`` gradient updates (a fraction carries over to the next step). Returns the
-        returns and successes of the episodes that ended."""
-        # 1. Act ε-greedily (messages with DIAL noise), 2. step all environment copies.
-        actions, messages = self.act(rollout.obs, self.epsilon, self.rng, noisy_messages=True)
-        next_obs, rewards, terminated, truncated, info = rollout.env.step(actions, messages)
-        # 3. Store. Only "both on target" is terminal; the time limit is a cut-off.
-        learned = self.learning_rewards(rewards, info, rollout.obs)
-        self.store(rollout, actions, messages, learned, info["final_obs"], terminated, truncated)
-        finished = terminated | truncated
-        returns = rollout.advance(next_obs, rewards, finished)
-        self.env_steps += rollout.env.n_envs
-        self.episodes += int(finished.sum())
-        self.recent_returns.extend(returns.tolist())
-        self.recent_successes.extend(terminated[finished].tolist())
-        # 4. Update and 5. sync the target networks, if due.
-        if self.env_steps >= self.cfg.learning_starts:
-            self._update_credit += updates
-        while self._update_credit >= 1.0:
-            self._update_credit -= 1.0
-            self.update_and_sync_target()
-        # 6. Schedules.
-        self.epsilon = self.next_epsilon(int(finished.sum()))
+    def update_schedules(self, finished_episodes: int) -> None:
+        """ε and the learning rate after a step in which ``finished_episodes`` ended."""
+        self.epsilon = self.next_epsilon(finished_episodes)
         for group in self.optimizer.param_groups:
             group["lr"] = self.learning_rate()
-        return returns, terminated[finished]
 
-    def train(self, progress: Callable[[dict[str, Any]], None] | None = None) -> list[dict]:
-        """Collect with the vectorised environments and learn until the budget is spent;
-        evaluate every ``eval_interval`` env steps (validation episodes), keep the best
-        weights, save the models and the log. Returns the log rows."""
-        cfg, rollout = self.cfg, self.rollout
-        self.start_log()
-        next_evaluation = 0
-        while not self.budget_spent():
-            if self.env_steps >= next_evaluation:  # 7. Evaluate and log.
-                self.evaluate_and_log(progress)
-                next_evaluation += cfg.eval_interval
-            self.step(rollout, cfg.updates_per_step)
-        self.evaluate_and_log(progress)
-        if cfg.keep_best:  # the weights the run ended with stay beside the selected ones
-            self.save_models(self.models_dir / LAST_WEIGHTS)
-            self.online.load_state_dict(self.best_checkpoint().state)
-        self.save_models()
-        return self.log
+    def planned_updates(self) -> int:
+        """Gradient updates the run will make with an env-step budget (prioritised replay's
+        β schedule); with an episode budget, as many as 100 000 samples."""
+        cfg = self.cfg
+        if cfg.num_episodes > 0:
+            return 100_000
+        vector_steps = max(1, (cfg.total_steps - cfg.learning_starts) // cfg.num_envs)
+        return vector_steps * cfg.updates_per_step
 
-    def train_episode(self) -> tuple[float, bool]:
-        """Play one episode in a single environment, learning as :meth:`train` does but
-        with one gradient update per env step (the skeleton's loop); returns
-        (episode_reward, success)."""
-        if self._episode_rollout is None:
-            self._episode_rollout = self.start_rollout(1, self.seed + 1)
-        while True:
-            returns, successes = self.step(self._episode_rollout, updates=1.0)
-            if len(returns):
-                return float(returns[0]), bool(successes[0])
-
-    # ------------------------------------------------------------------ 7. evaluate and log
-    def evaluate(
-        self, num_episodes: int = 10, epsilon: float = 0.0, seed: int = EVAL_SEED
-    ) -> tuple[float, float]:
-        """(mean reward, success rate) over fixed episodes (the test episodes by default),
-        under the reward the trainer learns from (unshaped); on the validation maps when
-        training on a map pool."""
-        summary = self.evaluation_summary(num_episodes, epsilon, seed)
-        return summary["mean_return"], summary["success_rate"]
-
+    # ------------------------------------------------------------------ 6. evaluate and log
     def evaluation_summary(
         self, num_episodes: int, epsilon: float, seed: int
     ) -> dict[str, float | int | None]:
@@ -567,13 +549,21 @@ class MultiAgentTrainer:
             return math.nan if value is None else value
 
         row = dict(
-            env_steps=self.env_steps, episodes=self.episodes, updates=self.updates,
-            epsilon=round(self.epsilon, 6), loss=mean(self._losses), mean_q=mean(self._mean_qs),
-            train_return=mean(self.recent_returns), train_success=mean(self.recent_successes),
-            eval_success_greedy=greedy["success_rate"], eval_success_eps=eps["success_rate"],
-            eval_return_greedy=greedy["mean_return"], eval_return_eps=eps["mean_return"],
-            eval_steps_greedy=steps(greedy), eval_steps_eps=steps(eps),
-        )  # fmt: skip
+            env_steps=self.env_steps,
+            episodes=self.episodes,
+            updates=self.updates,
+            epsilon=round(self.epsilon, 6),
+            loss=mean(self._losses),
+            mean_q=mean(self._mean_qs),
+            train_return=mean(self.recent_returns),
+            train_success=mean(self.recent_successes),
+            eval_success_greedy=greedy["success_rate"],
+            eval_success_eps=eps["success_rate"],
+            eval_return_greedy=greedy["mean_return"],
+            eval_return_eps=eps["mean_return"],
+            eval_steps_greedy=steps(greedy),
+            eval_steps_eps=steps(eps),
+        )
         self._losses, self._mean_qs = [], []
         self.log.append(row)
         with open(self.log_path, "a", newline="", encoding="utf-8") as handle:

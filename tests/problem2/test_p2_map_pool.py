@@ -166,12 +166,12 @@ def test_shared_gradient_is_the_sum_of_both_agents(tmp_path: Path) -> None:
     summed over the agent axis (one parameter used by both agents)."""
     trainer = pool_trainer(tmp_path, share_weights=True, comm_noise=0.0, max_grad_norm=1e9)
     collect(trainer, 10)
-    batch = trainer.sample(32)
+    batch, _ = trainer.sample(32)
     trainer.online.zero_grad(set_to_none=True)
     loss, _, _ = trainer.td_loss(batch)
     loss.backward()
     expected = [p.grad.sum(dim=0) for p in trainer.online.parameters()]
-    trainer.sample = lambda batch_size: batch  # the same batch for update_networks
+    trainer.sample = lambda batch_size: (batch, np.arange(batch_size))  # the same batch
     stepped = []
     trainer.optimizer.step = lambda **_: stepped.append(
         [p.grad.clone() for p in trainer.online.parameters()]

@@ -229,7 +229,7 @@ def test_curriculum_share_falls_to_zero_at_its_end(tmp_path: Path) -> None:
     shares = []
     while not taught.budget_spent():
         progress = taught.progress()  # the share is set from the progress before the step
-        taught.step(taught.rollout, 0.0)
+        taught.collect(taught.rollout)
         shares.append((progress, taught.rollout.env.start_on_target))
     assert shares[0] == (0.0, 0.6)
     for progress, share in shares:

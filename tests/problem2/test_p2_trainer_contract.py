@@ -89,9 +89,9 @@ def assert_hard_copy_after(trainer: train.MultiAgentTrainer, period: int) -> Non
     """The target stays as it is for ``period`` - 1 updates, then equals the online."""
     start = weights_of(trainer.target)
     for _ in range(period - 1):
-        trainer.update_and_sync_target()
+        trainer.update_networks(trainer.cfg.batch_size)
         assert torch.equal(weights_of(trainer.target), start)
-    trainer.update_and_sync_target()
+    trainer.update_networks(trainer.cfg.batch_size)
     assert trainer.updates == period
     assert torch.equal(weights_of(trainer.target), weights_of(trainer.online))
 
@@ -114,7 +114,7 @@ def test_soft_target_update_moves_the_target_tau_of_the_way_after_each_update(
     assert trainer.cfg.target_update == 0  # the default: soft updates
     for _ in range(3):
         before = weights_of(trainer.target)
-        trainer.update_and_sync_target()
+        trainer.update_networks(trainer.cfg.batch_size)
         online = weights_of(trainer.online)
         assert not torch.equal(online, before)
         assert torch.equal(weights_of(trainer.target), before.lerp(online, 0.25))
@@ -144,7 +144,7 @@ def test_no_target_update_while_the_buffer_holds_less_than_a_batch(
         for parameter in trainer.target.parameters():  # a target unlike the online networks
             parameter.add_(1.0)
     target = weights_of(trainer.target)
-    trainer.update_and_sync_target()
+    trainer.update_networks(trainer.cfg.batch_size)
     assert trainer.updates == 0 and torch.equal(weights_of(trainer.target), target)
 
 

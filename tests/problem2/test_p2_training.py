@@ -191,12 +191,12 @@ def test_time_limit_is_not_terminal_for_learning() -> None:
 def message_head_gradient(trainer: train.MultiAgentTrainer) -> torch.Tensor:
     """Gradient of the TD loss with respect to agent B's message head. B's message enters
     only A's input, so this is the gradient of receiver A's loss."""
-    batch = trainer.sample(64)
+    batch, _ = trainer.sample(64)
     trainer.online.zero_grad(set_to_none=True)
     loss, _, _ = trainer.td_loss(batch)
     loss.backward()
-    head_weight_grad = trainer.online.head_weight.grad
-    return head_weight_grad[1, -1]  # agent B, message row
+    gradient = trainer.online.stacked.message_head.weight.grad  # None: no path to the head
+    return torch.zeros(trainer.cfg.hidden_dim) if gradient is None else gradient[1, 0]
 
 
 @pytest.mark.parametrize("mode", ["comm", "full"])
@@ -310,7 +310,9 @@ def test_dueling_and_prioritized_variants_train(tmp_path: Path) -> None:
     assert isinstance(trainer.network_A, DuelingDQN)
     for _ in range(3):
         assert np.isfinite(trainer.update_networks(32))
-    assert trainer.last_td_errors.shape == (2, 32)
+    batch, slots = trainer.sample(32)
+    loss, td_errors, q_taken = trainer.td_loss(batch)
+    assert td_errors.shape == q_taken.shape == (2, 32) and slots.shape == (32,)
     # train() feeds the TD errors back as priorities.
     cfg = tiny_config("--mode", "full", "--prioritized", "--output_dir", str(tmp_path))
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)

@@ -177,7 +177,6 @@ class RecurrentTrainer(MultiAgentTrainer):
         self.dial = cfg.comm_learning == "dial" and mode in ("comm", "full")
         self.epsilon = cfg.epsilon_start
         self.env_steps = self.episodes = self.updates = 0
-        self._update_credit = 0.0
         self.recent_returns: deque[float] = deque(maxlen=100)
         self.recent_successes: deque[bool] = deque(maxlen=100)
         self.log: list[dict[str, Any]] = []
@@ -220,13 +219,13 @@ class RecurrentTrainer(MultiAgentTrainer):
         self._previous = actions.astype(np.int64)
         return actions, messages
 
-    def step(self, rollout: Any, updates: float) -> tuple[np.ndarray, np.ndarray]:
-        """The core's step, after setting the curriculum's share (``Levers.curriculum``) for
-        the episodes that start in it."""
+    def collect(self, rollout: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The core's collect, after setting the curriculum's share (``Levers.curriculum``)
+        for the episodes that start in it."""
         if self.levers.curriculum > 0:
             remaining = max(0.0, 1.0 - self.progress() / CURRICULUM_END)
             rollout.env.start_on_target = self.levers.curriculum * remaining
-        return super().step(rollout, updates)
+        return super().collect(rollout)
 
     def learning_rewards(
         self, rewards: np.ndarray, info: dict[str, np.ndarray], obs: np.ndarray
@@ -342,17 +341,17 @@ class RecurrentTrainer(MultiAgentTrainer):
         return loss, (q_taken - target).detach()[valid], q_taken.detach()[valid]
 
     def update_networks(self, batch_size: int) -> float:
-        """One gradient step on ``batch_episodes`` stored episodes (0.0 while fewer)."""
+        """One gradient step on ``batch_episodes`` stored episodes (0.0 while fewer), then
+        the core's target sync."""
         if len(self.replay_buffer) < self.batch_episodes:
             return 0.0
-        loss, self.last_td_errors, q_taken = self.td_loss(
-            self.replay_buffer.sample(self.batch_episodes)
-        )
+        loss, _, q_taken = self.td_loss(self.replay_buffer.sample(self.batch_episodes))
         self.optimizer.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(self.online_parameters, self.cfg.max_grad_norm)
         self.optimizer.step()
         self.updates += 1
+        self.sync_target()
         loss_value = float(loss.detach())
         self._losses.append(loss_value)
         self._mean_qs.append(float(q_taken.mean()))
