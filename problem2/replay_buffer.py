@@ -142,19 +142,8 @@ class ReplayBuffer:
     ) -> None:
         """Store one transition: states (obs_dim,), the rest scalars; ``extras`` likewise
         one transition's worth each."""
-        required = (
-            state_A,
-            state_B,
-            action_A,
-            action_B,
-            comm_A,
-            comm_B,
-            reward,
-            next_state_A,
-            next_state_B,
-            done,
-        )
-        fields = dict(zip(TRANSITION_FIELDS, required, strict=True)) | extras
+        arguments = locals()  # the ten required fields, by name
+        fields = {name: arguments[name] for name in TRANSITION_FIELDS} | extras
         self.push_batch(**{name: _as_array(name, value)[None] for name, value in fields.items()})
 
     def push_batch(self, *, validate: bool = True, **arrays: np.ndarray) -> np.ndarray:

@@ -37,28 +37,11 @@ from vector_env import VectorMultiAgentEnv
 
 from tests.conftest import PROBLEM2
 
-TINY_RUN = [
-    "--total_steps",
-    "1536",
-    "--num_envs",
-    "16",
-    "--learning_starts",
-    "512",
-    "--batch_size",
-    "32",
-    "--eval_interval",
-    "512",
-    "--eval_episodes",
-    "16",
-    "--final_eval_episodes",
-    "32",
-    "--buffer_size",
-    "4096",
-    "--num_seeds",
-    "2",
-    "--workers",
-    "1",
-]
+TINY_RUN_FLAGS = (
+    "--total_steps 1536 --num_envs 16 --learning_starts 512 --batch_size 32 --eval_interval 512 "
+    "--eval_episodes 16 --final_eval_episodes 32 --buffer_size 4096 --num_seeds 2 --workers 1"
+)
+TINY_RUN = TINY_RUN_FLAGS.split()
 OUTPUTS = [
     "performance.json",
     "comparison_table.md",
