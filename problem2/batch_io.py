@@ -1,6 +1,7 @@
 """Batch plumbing for problem 2: atomic file writes (under a temporary name in the target
 folder, then ``os.replace`` onto the real name, so an interrupted run never leaves a
-half-written result), stale temporaries, worker processes and the progress line."""
+half-written result), stale temporaries, worker processes, the progress line and a console
+that cannot show every character."""
 
 from __future__ import annotations
 
@@ -18,6 +19,13 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TextIO
+
+
+def make_console_safe() -> None:
+    """Print '?', not a UnicodeEncodeError, for what a console (Windows' cp1252) cannot show."""
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="replace")
 
 
 @contextmanager

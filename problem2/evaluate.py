@@ -28,8 +28,6 @@ that module for the list of files).
 from __future__ import annotations
 
 import argparse
-import io
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -41,12 +39,12 @@ from analysis.report import create_evaluation_report, format_report
 from analysis.runs import (
     DEFAULT_ROOT,
     MODES,
-    best_seed,
     discover_experiments,
     load_model_pair,
     model_paths,
     resolve_checkpoint,
 )
+from batch_io import make_console_safe
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON
 
@@ -73,13 +71,6 @@ def load_trained_models(
     return load_model_pair(path, mode, seed)
 
 
-def make_console_safe() -> None:
-    """Replace characters the console cannot encode (e.g. 'ε' on cp1252) instead of failing."""
-    for stream in (sys.stdout, sys.stderr):
-        if isinstance(stream, io.TextIOWrapper):
-            stream.reconfigure(errors="replace")
-
-
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0],
@@ -87,23 +78,47 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     add = parser.add_argument
-    add("--checkpoint", "--checkpoint_dir", "--checkpoint-dir", type=Path,
+    add(
+        "--checkpoint",
+        "--checkpoint_dir",
+        "--checkpoint-dir",
+        type=Path,
         default=DEFAULT_CHECKPOINT,
         help="agent_models folder of the main experiment, or the run folder holding it "
-             "(relative to the current folder; the default is this package's "
-             "results/agent_models, from any folder). Studies are found beside it under "
-             "../studies. With a manifest.json exactly its runs are evaluated, every file "
-             "checked against it; without one, the model files found are")  # fmt: skip
-    add("--num_episodes", "--num-episodes", type=int, default=1000,
-        help="test episodes per trained seed and condition")  # fmt: skip
-    add("--epsilon", type=float, default=EVAL_EPSILON,
-        help="exploration rate of the ε-greedy condition")  # fmt: skip
+        "(relative to the current folder; the default is this package's "
+        "results/agent_models, from any folder). Studies are found beside it under "
+        "../studies. With a manifest.json exactly its runs are evaluated, every file "
+        "checked against it; without one, the model files found are",
+    )
+    add(
+        "--num_episodes",
+        "--num-episodes",
+        type=int,
+        default=1000,
+        help="test episodes per trained seed and condition",
+    )
+    add(
+        "--epsilon",
+        type=float,
+        default=EVAL_EPSILON,
+        help="exploration rate of the ε-greedy condition",
+    )
     add("--render", action="store_true", help="first print one episode step by step")
     add("--mode", default="full", choices=MODES, help="mode whose best pair --render shows")
-    add("--output_dir", "--output-dir", type=Path, default=None,
-        help="output folder; None: evaluation_results beside the agent_models folder")  # fmt: skip
-    add("--generalization_episodes", "--generalization-episodes", type=int, default=500,
-        help="test episodes per model and map, generalisation test")  # fmt: skip
+    add(
+        "--output_dir",
+        "--output-dir",
+        type=Path,
+        default=None,
+        help="output folder; None: evaluation_results beside the agent_models folder",
+    )
+    add(
+        "--generalization_episodes",
+        "--generalization-episodes",
+        type=int,
+        default=500,
+        help="test episodes per model and map, generalisation test",
+    )
     args = parser.parse_args(argv)
     for flag in ("num_episodes", "generalization_episodes"):
         if not 1 <= getattr(args, flag) <= 5000:
@@ -122,7 +137,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Evaluate every experiment found from the checkpoint folder and write every output.
     A missing, damaged or unlisted model file ends the run (exit status 1) naming it,
-    before anything is written."""
+    before anything is written: the manifest's checksums are checked when the experiments
+    are found, and each pair is loaded and checked where it is evaluated."""
     make_console_safe()
     args = parse_args(argv)
     torch.set_num_threads(1)  # batches of ~1000 rows: one thread is fast and leaves cores free
@@ -132,12 +148,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             raise FileNotFoundError(f"no trained models in {args.checkpoint}; run train.py first")
         for experiment in experiments:
             if experiment.manifest is None:
-                print(f"note: no manifest.json in {experiment.models_dir}: evaluating the "
-                      "model files found there")  # fmt: skip
-            for mode, seeds in experiment.seeds.items():
-                for seed in seeds:
-                    load_model_pair(experiment.models_dir, mode, seed)
-                best_seed(experiment, mode)  # a damaged or foreign best pair is an error
+                print(
+                    f"note: no manifest.json in {experiment.models_dir}: evaluating the "
+                    "model files found there"
+                )
         if args.render:
             main_experiment = experiments[0]
             env = MultiAgentEnv(

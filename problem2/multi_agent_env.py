@@ -128,8 +128,9 @@ class MultiAgentEnv:
         """One joint step: ((obs_A, obs_B), team reward, done). ``done`` is True when both
         agents stand on the target or ``max_steps`` steps have passed. Messages are clipped
         into [0, 1]. The team reward (``vector_env.team_rewards``, one value per step): +10
-        when both stand on the target; by default +2 on every step on which exactly one
-        does; -0.1 otherwise."""
+        when both stand on the target; with this environment's default ``reward_mode``
+        ``per_step`` (the assignment's table; the trainer learns from ``goal``) +2 on every
+        step on which exactly one does; -0.1 otherwise."""
         actions = np.array([[_action(action_A, "action_A"), _action(action_B, "action_B")]])
         messages = np.array([[_message(comm_A, "comm_A"), _message(comm_B, "comm_B")]])
         obs, rewards, terminated, truncated, _ = self._vector.step(actions, messages)

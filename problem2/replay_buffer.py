@@ -12,15 +12,29 @@ import numpy as np
 from grid_maps import NUM_ACTIONS
 
 TRANSITION_FIELDS = (
-    "state_A", "state_B", "action_A", "action_B", "comm_A", "comm_B",
-    "reward", "next_state_A", "next_state_B", "done",
-)  # fmt: skip
+    "state_A",
+    "state_B",
+    "action_A",
+    "action_B",
+    "comm_A",
+    "comm_B",
+    "reward",
+    "next_state_A",
+    "next_state_B",
+    "done",
+)
 STATE_FIELDS = ("state_A", "state_B", "next_state_A", "next_state_B")
 # Column order of a row: these observation pairs side by side (A then B), then the rest.
 PAIRED_FIELDS = (
-    "state_A", "state_B", "next_state_A", "next_state_B",
-    "prev_state_A", "prev_state_B", "last_state_A", "last_state_B",
-)  # fmt: skip
+    "state_A",
+    "state_B",
+    "next_state_A",
+    "next_state_B",
+    "prev_state_A",
+    "prev_state_B",
+    "last_state_A",
+    "last_state_B",
+)
 _INTEGER_FIELDS = ("action_A", "action_B")  # stored as int64; the other required: float32
 
 
@@ -112,16 +126,25 @@ class ReplayBuffer:
         """The ten required fields, then the extras (empty before the first push)."""
         return tuple(self._shapes)
 
-    # fmt: off
-    def push(self, state_A, state_B, action_A, action_B, comm_A, comm_B, reward,
-             next_state_A, next_state_B, done, **extras) -> None:
+    def push(
+        self,
+        state_A,
+        state_B,
+        action_A,
+        action_B,
+        comm_A,
+        comm_B,
+        reward,
+        next_state_A,
+        next_state_B,
+        done,
+        **extras,
+    ) -> None:
         """Store one transition: states (obs_dim,), the rest scalars; ``extras`` likewise
         one transition's worth each."""
-        required = (state_A, state_B, action_A, action_B, comm_A, comm_B, reward,
-                    next_state_A, next_state_B, done)
-        fields = dict(zip(TRANSITION_FIELDS, required, strict=True)) | extras
+        arguments = locals()  # the ten required fields, by name
+        fields = {name: arguments[name] for name in TRANSITION_FIELDS} | extras
         self.push_batch(**{name: _as_array(name, value)[None] for name, value in fields.items()})
-    # fmt: on
 
     def push_batch(self, *, validate: bool = True, **arrays: np.ndarray) -> np.ndarray:
         """Store B transitions: the ten required fields and any extras as keywords, each

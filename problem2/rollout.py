@@ -154,9 +154,14 @@ class NStepWindow:
         self.in_episode = np.zeros(n_envs, np.int64)  # window steps of each running episode
 
     def add(
-        self, start: dict[str, np.ndarray], reward: np.ndarray, next_obs: np.ndarray,
-        obs: np.ndarray, terminated: np.ndarray, finished: np.ndarray,
-    ) -> dict[str, np.ndarray]:  # fmt: skip
+        self,
+        start: dict[str, np.ndarray],
+        reward: np.ndarray,
+        next_obs: np.ndarray,
+        obs: np.ndarray,
+        terminated: np.ndarray,
+        finished: np.ndarray,
+    ) -> dict[str, np.ndarray]:
         """One step of the N episodes.
 
         Args:
@@ -192,10 +197,11 @@ class NStepWindow:
         complete = {name: ring[slots] for name, ring in self.started.items()}
         complete |= {
             "reward": self.returns.reshape(-1)[slots].astype(np.float32),
-            "next_state_A": next_obs[env, 0], "next_state_B": next_obs[env, 1],
+            "next_state_A": next_obs[env, 0],
+            "next_state_B": next_obs[env, 1],
             "done": done.astype(np.float32),
             "discount": np.where(done, 0.0, self.discounts[lag + 1]).astype(np.float32),
-        }  # fmt: skip
+        }
         if n > 1:
             complete |= {"last_state_A": obs[env, 0], "last_state_B": obs[env, 1]}
         return complete

@@ -23,7 +23,7 @@ from grid_maps import (
 BOTH_ON_TARGET_REWARD = 10.0
 ARRIVAL_REWARD = 2.0
 STEP_REWARD = -0.1
-REWARD_MODES = ("per_step", "arrival", "goal")  # the first is the default: the assignment's table
+REWARD_MODES = ("per_step", "arrival", "goal")  # per_step: the envs' default, not the trainer's
 MAX_TABULATED_CELLS = 4096  # padded cells; the (P, P) float32 table is then ≤ 64 MiB
 
 
@@ -33,13 +33,17 @@ def team_rewards(on_target: np.ndarray, first_arrival: np.ndarray, reward_mode: 
     in the episode (``first_arrival`` (N, 2) bool).
 
     ================================  =====================  ==============  ========
-    after the joint move              ``per_step`` (default)  ``arrival``     ``goal``
+    after the joint move              ``per_step``           ``arrival``     ``goal``
     ================================  =====================  ==============  ========
     both agents on the target (ends)  +10                    +10             +10
     exactly one agent on the target   +2 (every such step)   -0.1            -0.1
     an agent first reaches the target +2 / -0.1 as above     +2              -0.1
     otherwise                         -0.1                   -0.1            -0.1
     ================================  =====================  ==============  ========
+
+    ``per_step`` (the assignment's table) is the environments' default; ``goal`` is the
+    trainer's default (``TrainConfig.reward_mode``), which adds a potential-based arrival
+    term of its own (``--target_potential``).
     """
     both = on_target[:, 0] & on_target[:, 1]
     if reward_mode == "per_step":

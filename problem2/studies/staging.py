@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from batch_io import remove_stale_temporaries, write_json_atomic
-from train_config import FIELD_CHECKS, check_value
+from train_config import check_setting
 from trainer import MultiAgentTrainer
 
 
@@ -54,7 +54,7 @@ def write_timing(path: Path, runs: list[dict[str, Any]]) -> None:
 def check_field(name: str, value: Any) -> None:
     """Raise ``SettingError`` if ``value`` breaks TrainConfig field ``name``'s rule (checked
     alone: for a flag that is turned into other fields, e.g. a study's seed count)."""
-    check_value(name, value, FIELD_CHECKS[name])
+    check_setting(name, value)
 
 
 def best_env_steps(trainer: MultiAgentTrainer) -> int:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 from batch_io import ProgressLine
-from train_config import TrainConfig, parse_config
+from train_config import SettingError, TrainConfig, parse_config
 
 from tests.conftest import PROBLEM2, load_problem_module
 
@@ -102,6 +102,30 @@ def test_bad_setting_is_a_usage_error_naming_flag_and_value_before_any_work(
     assert not out.exists()
 
 
+def test_every_bad_setting_is_reported_not_only_the_first(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exit_info:
+        train.main(["--gamma", "2", "--lr", "-1", "--output_dir", str(out)])
+    assert exit_info.value.code == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[-2].endswith("argument --lr: must be a finite number in (0, inf), got -1.0")
+    assert lines[-1] == "argument --gamma: must be a finite number in [0, 1), got 2.0"
+    assert not out.exists()
+
+
+def test_a_relation_is_checked_beside_single_settings_but_not_on_an_invalid_one() -> None:
+    with pytest.raises(SettingError) as error:
+        TrainConfig(gamma=2.0, epsilon_start=0.1, epsilon_end=0.5).validate()
+    assert [name for name, _, _ in error.value.problems] == ["gamma", "epsilon_end"]
+    assert (error.value.name, error.value.value) == ("gamma", 2.0)  # the first problem
+    assert (
+        str(error.value).splitlines()[1] == "epsilon_end must not exceed epsilon_start 0.1, got 0.5"
+    )
+    with pytest.raises(SettingError) as error:
+        TrainConfig(epsilon_start=2.0, epsilon_end=0.5).validate()  # no comparison with 2.0
+    assert [name for name, _, _ in error.value.problems] == ["epsilon_start"]
+
+
 def test_output_dir_that_is_a_file_is_refused(tmp_path: Path, capsys) -> None:
     file = tmp_path / "a_file"
     file.write_text("x", encoding="utf-8")
@@ -175,7 +199,7 @@ def test_help_states_units_ranges_path_rule_and_overwrite_rule(tmp_path: Path) -
 
 
 def test_console_without_utf8_gets_replacement_characters_not_a_crash() -> None:
-    code = "import train; train.make_console_safe(); print('ε → ×')"
+    code = "import batch_io; batch_io.make_console_safe(); print('ε → ×')"
     env = dict(os.environ, PYTHONIOENCODING="cp1252")
     result = subprocess.run(
         [sys.executable, "-c", code], cwd=PROBLEM2, env=env, capture_output=True, timeout=120

@@ -82,8 +82,10 @@ def test_manifest_describes_the_batch_and_matches_its_files(batch: Path) -> None
             )
     best = manifest["best"]["full"]
     seeds = sorted(manifest["runs"])  # full_seed1, full_seed2
-    pairs = [(manifest["runs"][n]["selection"]["greedy"], manifest["runs"][n]["selection"]["eps"])
-             for n in seeds]  # fmt: skip
+    pairs = [
+        (manifest["runs"][n]["selection"]["greedy"], manifest["runs"][n]["selection"]["eps"])
+        for n in seeds
+    ]
     assert best == seeds[select_best(pairs, manifest["hyperparameters"]["select_by"])]
     for agent in "AB":
         assert (models / f"full_agent_{agent}.pt").read_bytes() == (

@@ -123,8 +123,14 @@ def run(env: MultiAgentEnv, joint_actions: list[tuple[int, int]]) -> list[tuple[
 
 # A starts left of the target, B two cells further left. A arrives, waits, leaves, comes
 # back, then B walks in. Rewards per reading, step by step.
-ARRIVE_LEAVE_RETURN = [(RIGHT, STAY), (STAY, RIGHT), (LEFT, STAY), (RIGHT, STAY), (STAY, RIGHT),
-                       (STAY, RIGHT)]  # fmt: skip
+ARRIVE_LEAVE_RETURN = [
+    (RIGHT, STAY),
+    (STAY, RIGHT),
+    (LEFT, STAY),
+    (RIGHT, STAY),
+    (STAY, RIGHT),
+    (STAY, RIGHT),
+]
 EXPECTED = {
     "arrival": [2.0, -0.1, -0.1, -0.1, -0.1, 10.0],
     "per_step": [2.0, 2.0, -0.1, 2.0, 2.0, 10.0],

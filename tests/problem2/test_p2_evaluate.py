@@ -127,8 +127,9 @@ def test_mode_differences_pair_by_episode_and_name_the_established_ones() -> Non
     assert list(result) == ["base_minus_worse", "noisy_minus_worse", "noisy_minus_base"]
     gain = result["base_minus_worse"]
     assert gain["mean"] == pytest.approx(0.03) and gain["ci95_seeds_only"] == [
-        pytest.approx(0.03), pytest.approx(0.03)
-    ]  # fmt: skip
+        pytest.approx(0.03),
+        pytest.approx(0.03),
+    ]
     # paired: the episodes' difficulty cancels, only the 30 flipped episodes vary
     assert gain["established"] and 0.015 < gain["ci95"][0] <= 0.03 <= gain["ci95"][1] < 0.045
     assert gain["seeds"] == [10, 10] and gain["episodes"] == 1000

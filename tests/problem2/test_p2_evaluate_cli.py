@@ -37,12 +37,11 @@ from vector_env import VectorMultiAgentEnv
 
 from tests.conftest import PROBLEM2
 
-TINY_RUN = [
-    "--total_steps", "1536", "--num_envs", "16", "--learning_starts", "512",
-    "--batch_size", "32", "--eval_interval", "512", "--eval_episodes", "16",
-    "--final_eval_episodes", "32", "--buffer_size", "4096", "--num_seeds", "2",
-    "--workers", "1",
-]  # fmt: skip
+TINY_RUN_FLAGS = (
+    "--total_steps 1536 --num_envs 16 --learning_starts 512 --batch_size 32 --eval_interval 512 "
+    "--eval_episodes 16 --final_eval_episodes 32 --buffer_size 4096 --num_seeds 2 --workers 1"
+)
+TINY_RUN = TINY_RUN_FLAGS.split()
 OUTPUTS = [
     "performance.json",
     "comparison_table.md",
@@ -158,8 +157,12 @@ def test_communication_analysis_has_causal_test_and_verdict(evaluated: tuple[dic
         seed_entry = modes[mode]["per_seed"]["641"]
         assert set(seed_entry["messages"]) == {"A", "B"}
         assert set(seed_entry["correlations"]["A"]) == {
-            "on_target", "sees_target", "target_distance", "agent_distance", "time_step"
-        }  # fmt: skip
+            "on_target",
+            "sees_target",
+            "target_distance",
+            "agent_distance",
+            "time_step",
+        }
     generalization = json.loads((output / "generalization.json").read_text())
     assert list(generalization["maps"]) == [str(k) for k in range(10)]
     assert all(entry["oracle"]["success_rate"] == 1.0 for entry in generalization["maps"].values())
@@ -181,12 +184,17 @@ def test_mode_differences_are_written(evaluated: tuple[dict, Path]) -> None:
     performance = json.loads((output / "performance.json").read_text(encoding="utf-8"))
     main_entry = performance["experiments"]["main"]
     differences = main_entry["mode_differences"]
-    assert set(differences) == {"comm_minus_independent", "full_minus_independent",
-                                "full_minus_comm"}  # fmt: skip
+    assert set(differences) == {
+        "comm_minus_independent",
+        "full_minus_independent",
+        "full_minus_comm",
+    }
     for pair, conditions in differences.items():
         for condition, d in conditions.items():
-            first, second = (main_entry["modes"][d[k]][condition]["success_rate"]["mean"]
-                             for k in ("first", "second"))  # fmt: skip
+            first, second = (
+                main_entry["modes"][d[k]][condition]["success_rate"]["mean"]
+                for k in ("first", "second")
+            )
             assert pair == f"{d['first']}_minus_{d['second']}"
             assert d["mean"] == pytest.approx(first - second)
             assert d["established"] == (d["ci95"][0] > 0 or d["ci95"][1] < 0)
@@ -206,8 +214,10 @@ def test_interventions_measures_and_decomposition_are_written(
     assert set(message["delta_success"]) == set(INTERVENTIONS) - {"real"}
     assert message["verdict"] in ("content", "clock", "presence", "none")
     assert set(modes["full"]["distance"]["greedy"]["success"]) == {
-        "real", "same_step", "constant_mean"
-    }  # fmt: skip
+        "real",
+        "same_step",
+        "constant_mean",
+    }
     measures = json.loads((output / "communication_measures.json").read_text(encoding="utf-8"))
     independent = measures["experiments"]["main"]["independent"]["aggregate"]
     for bins in ("K2", "K10"):
@@ -292,8 +302,17 @@ def test_studies_are_discovered_with_their_labels(tiny_root: Path, tmp_path: Pat
 
 
 def _quick(models: Path, *extra: str) -> list[str]:
-    return ["--checkpoint", str(models), "--num_episodes", "10", "--generalization_episodes",
-            "5", "--output_dir", str(models.parent / "out"), *extra]  # fmt: skip
+    return [
+        "--checkpoint",
+        str(models),
+        "--num_episodes",
+        "10",
+        "--generalization_episodes",
+        "5",
+        "--output_dir",
+        str(models.parent / "out"),
+        *extra,
+    ]
 
 
 def test_missing_or_corrupt_model_files_are_named(tiny_root: Path, tmp_path: Path) -> None:
@@ -367,9 +386,11 @@ def test_models_with_bad_outputs_are_named(
     with pytest.raises(SystemExit, match=f"comm_seed641_agent_B.pt.*{message}"):
         main(_quick(models))
     result = subprocess.run(
-        [sys.executable, "evaluate.py", *_quick(models)], cwd=PROBLEM2, capture_output=True,
+        [sys.executable, "evaluate.py", *_quick(models)],
+        cwd=PROBLEM2,
+        capture_output=True,
         text=True,
-    )  # fmt: skip
+    )
     assert result.returncode != 0 and "comm_seed641_agent_B.pt" in result.stderr
 
 
@@ -380,21 +401,31 @@ def _write_manifest(models: Path) -> dict:
         name = f"{mode}_seed{seed}"
         files = {agent: f"{name}_agent_{agent}.pt" for agent in "AB"}
         runs[name] = {
-            "mode": mode, "seed": seed, "models": files,
+            "mode": mode,
+            "seed": seed,
+            "models": files,
             "sha256": {a: sha256_of(models / f) for a, f in files.items()},
             "selection": {"greedy": 0.0, "eps": 0.0, "score": 0.0},
-        }  # fmt: skip
+        }
     best = {}
     for mode in ("independent", "comm", "full"):
         content = (models / f"{mode}_agent_A.pt").read_bytes()
         best[mode] = next(
-            n for n, r in runs.items() if r["mode"] == mode
-            and (models / r["models"]["A"]).read_bytes() == content
-        )  # fmt: skip
-    manifest = {"format": 1, "modes": ["independent", "comm", "full"], "seeds": [641, 642],
-                "map_seed": 641, "reward_mode": "arrival",
-                "hyperparameters": {"max_steps": 50, "grid_size": 10, "map_seed": 641},
-                "code_version": "0" * 64, "runs": runs, "best": best}  # fmt: skip
+            n
+            for n, r in runs.items()
+            if r["mode"] == mode and (models / r["models"]["A"]).read_bytes() == content
+        )
+    manifest = {
+        "format": 1,
+        "modes": ["independent", "comm", "full"],
+        "seeds": [641, 642],
+        "map_seed": 641,
+        "reward_mode": "arrival",
+        "hyperparameters": {"max_steps": 50, "grid_size": 10, "map_seed": 641},
+        "code_version": "0" * 64,
+        "runs": runs,
+        "best": best,
+    }
     (models / "manifest.json").write_text(json.dumps(manifest), encoding="utf-8")
     return manifest
 
@@ -436,15 +467,28 @@ def test_without_manifest_the_files_found_are_evaluated_with_a_note(
 def test_cli_survives_a_cp1252_console(tiny_root: Path, tmp_path: Path) -> None:
     result = subprocess.run(
         [sys.executable, "evaluate.py", *_quick(tiny_root / "agent_models", "--render")],
-        cwd=PROBLEM2, capture_output=True, env=os.environ | {"PYTHONIOENCODING": "cp1252"},
-    )  # fmt: skip
+        cwd=PROBLEM2,
+        capture_output=True,
+        env=os.environ | {"PYTHONIOENCODING": "cp1252"},
+    )
     assert result.returncode == 0, result.stderr.decode("cp1252", "replace")
     assert b"success greedy" in result.stdout
     result = subprocess.run(
-        [sys.executable, "-m", "analysis.baselines", "--episodes", "20", "--map_seeds", "0",
-         "--output", str(tmp_path / "b.json")],
-        cwd=PROBLEM2, capture_output=True, env=os.environ | {"PYTHONIOENCODING": "cp1252"},
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "analysis.baselines",
+            "--episodes",
+            "20",
+            "--map_seeds",
+            "0",
+            "--output",
+            str(tmp_path / "b.json"),
+        ],
+        cwd=PROBLEM2,
+        capture_output=True,
+        env=os.environ | {"PYTHONIOENCODING": "cp1252"},
+    )
     assert result.returncode == 0
 
 

@@ -112,8 +112,11 @@ def test_extras_are_stored_beside_the_required_fields() -> None:
     assert np.array_equal(weights, np.ones(8, dtype=np.float32)) and indices.shape == (8,)
     assert len(buffer.sample(4)) == 10  # sample() keeps to the ten required arrays
     single = batch_of(50, 1)
-    buffer.push(*(single[name][0] for name in TRANSITION_FIELDS),
-                prev_partner_obs_A=np.zeros(11), prev_partner_obs_B=np.ones(11))  # fmt: skip
+    buffer.push(
+        *(single[name][0] for name in TRANSITION_FIELDS),
+        prev_partner_obs_A=np.zeros(11),
+        prev_partner_obs_B=np.ones(11),
+    )
     assert len(buffer) == 9
 
 
@@ -237,9 +240,17 @@ def test_prioritized_constructor_rejects_bad_hyperparameters() -> None:
 
 # ------------------------------------------------------------------- malformed input
 GOOD = dict(
-    state_A=np.zeros(11), state_B=np.zeros(11), action_A=1, action_B=4, comm_A=0.5, comm_B=1.0,
-    reward=-0.1, next_state_A=np.zeros(11), next_state_B=np.zeros(11), done=False,
-)  # fmt: skip
+    state_A=np.zeros(11),
+    state_B=np.zeros(11),
+    action_A=1,
+    action_B=4,
+    comm_A=0.5,
+    comm_B=1.0,
+    reward=-0.1,
+    next_state_A=np.zeros(11),
+    next_state_B=np.zeros(11),
+    done=False,
+)
 
 
 @pytest.mark.parametrize(
@@ -341,9 +352,15 @@ def test_n_step_window_gives_each_step_its_discounted_k_step_return(n_step: int)
             last = t + k - 1
             terminal = bool(terminated[last, env]) and last == end
             expected.append(
-                {"step": t, "env": env, "k": k, "terminal": terminal, "last": last,
-                 "reward": sum(gamma**i * rewards[t + i, env] for i in range(k))}
-            )  # fmt: skip
+                {
+                    "step": t,
+                    "env": env,
+                    "k": k,
+                    "terminal": terminal,
+                    "last": last,
+                    "reward": sum(gamma**i * rewards[t + i, env] for i in range(k)),
+                }
+            )
     assert len(emitted) == len(expected)
     by_start = {(int(e["step"]), int(e["env"])): e for e in emitted}
     for want in expected:

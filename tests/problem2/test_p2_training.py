@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import warnings
 from pathlib import Path
@@ -14,7 +15,7 @@ from analysis.runs import load_map
 from models import AgentDQN, DuelingDQN, PairedQNetworks
 from multi_agent_env import MultiAgentEnv
 from rollout import evaluate_policy
-from train_config import TrainConfig, build_parser, field_docs, parse_config
+from train_config import TrainConfig, build_parser, parse_config
 
 from tests.conftest import load_problem_module, weights_of
 
@@ -104,13 +105,13 @@ def test_observation_mask_zeroes_the_hidden_inputs() -> None:
 
 
 # ---------------------------------------------------------------------- configuration
-def test_every_field_has_a_flag_in_both_spellings_and_a_help_text() -> None:
-    docs = field_docs(TrainConfig)
-    parser = build_parser()
-    for name in TrainConfig.__dataclass_fields__:
-        assert docs.get(name), f"field {name} has no docstring"
-        flags = parser._option_string_actions
-        assert f"--{name}" in flags and f"--{name.replace('_', '-')}" in flags
+def test_every_field_has_a_flag_in_both_spellings_with_its_help_text() -> None:
+    flags = build_parser()._option_string_actions
+    for spec in dataclasses.fields(TrainConfig):
+        help_text = spec.metadata["help"]
+        assert help_text and "\n" not in help_text, f"field {spec.name} has no one-line help"
+        for flag in (f"--{spec.name}", f"--{spec.name.replace('_', '-')}"):
+            assert flags[flag].dest == spec.name and flags[flag].help.startswith(help_text)
 
 
 def test_starter_flags_and_defaults() -> None:
