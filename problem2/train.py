@@ -14,18 +14,12 @@ import gc
 import sys
 from typing import Any
 
+from batch_io import make_console_safe
 from experiments import INTERRUPTED, check_output_dir, output_root, run_experiments
 from train_config import TrainConfig, parse_config_or_exit
 from trainer import EVAL_EPSILON, MultiAgentTrainer, apply_observation_mask
 
 __all__ = ["EVAL_EPSILON", "MultiAgentTrainer", "TrainConfig", "apply_observation_mask", "main"]
-
-
-def make_console_safe() -> None:
-    """Print '?', not a UnicodeEncodeError, for what a console (Windows' cp1252) cannot show."""
-    for stream in (sys.stdout, sys.stderr):
-        if hasattr(stream, "reconfigure"):
-            stream.reconfigure(errors="replace")
 
 
 def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
