@@ -221,3 +221,59 @@ def mode_differences(
         result[key] |= {"seeds": [entry["seeds"][later], entry["seeds"][earlier]]}
         result[key]["episodes"] = entry["episodes"]
     return result
+
+
+def average_ranks(values: Sequence[float] | np.ndarray) -> np.ndarray:
+    """Ranks (..., n) from 1 along the last axis of ``values`` (..., n); tied values share
+    the mean of the ranks they occupy (e.g. [10, 20, 20, 30] -> [1, 2.5, 2.5, 4])."""
+    v = np.asarray(values, dtype=np.float64)
+    below = (v[..., None, :] < v[..., :, None]).sum(axis=-1)
+    equal = (v[..., None, :] == v[..., :, None]).sum(axis=-1)  # itself included
+    return below + (equal + 1) / 2
+
+
+def _rank_correlations(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Spearman's rho along the last axis of x, y (..., n); NaN where either is constant."""
+    rx, ry = average_ranks(x), average_ranks(y)
+    rx = rx - rx.mean(axis=-1, keepdims=True)
+    ry = ry - ry.mean(axis=-1, keepdims=True)
+    scale = np.sqrt((rx * rx).sum(axis=-1) * (ry * ry).sum(axis=-1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(scale > 0, (rx * ry).sum(axis=-1) / scale, np.nan)
+
+
+def spearman(x: Sequence[float], y: Sequence[float]) -> float | None:
+    """Spearman's rank correlation of paired samples x, y (n,): the Pearson correlation of
+    their average ranks; None if either sample is constant (the correlation is undefined)."""
+    rho = float(_rank_correlations(np.asarray(x, float), np.asarray(y, float)))
+    return None if np.isnan(rho) else rho
+
+
+def spearman_interval(
+    x: Sequence[float],
+    y: Sequence[float],
+    n_resamples: int = BOOTSTRAP_RESAMPLES,
+    seed: int = BOOTSTRAP_SEED,
+) -> dict[str, Any]:
+    """:func:`spearman` of x, y (n,) with a percentile bootstrap 95 % interval: each resample
+    draws n pairs with replacement. A resample in which x or y is constant has no
+    correlation: it is left out and counted in ``undefined_resamples`` (``ci95`` is None
+    if every resample is)."""
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    if x.shape != y.shape or x.ndim != 1:
+        raise ValueError(
+            f"spearman_interval needs two samples of one length, got {x.shape}, {y.shape}"
+        )
+    rng = np.random.default_rng(seed)
+    picks = rng.integers(0, len(x), size=(n_resamples, len(x)))
+    resampled = _rank_correlations(x[picks], y[picks])  # (n_resamples,)
+    defined = resampled[~np.isnan(resampled)]
+    tail = (1 - CONFIDENCE) / 2
+    interval = np.quantile(defined, [tail, 1 - tail]).tolist() if defined.size else None
+    return {
+        "rho": spearman(x, y),
+        "ci95": interval,
+        "n": len(x),
+        "resamples": n_resamples,
+        "undefined_resamples": int(n_resamples - defined.size),
+    }
