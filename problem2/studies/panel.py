@@ -81,7 +81,7 @@ EFFECT_WORDS = {
 PROPERTY = {
     "name": "landmark_distance",
     "definition": "the smallest Chebyshev distance from the target to an obstacle or an "
-    "off-grid cell, minus 1: 0 when the target's own 3 x 3 patch shows a wall or an obstacle "
+    "off-grid cell, minus 1: 0 when the target's own 3 × 3 patch shows a wall or an obstacle "
     "(a corner target gives 0), larger the farther the target lies in open ground",
 }
 BEHAVIOUR = {
