@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from analysis.baselines import POLICIES, target_distances
+from analysis.baselines import POLICIES, int_list, target_distances
 from analysis.evaluator import MultiAgentEvaluator, experiment_evaluator
 from analysis.failures import arrivals, homing_counts, homing_shares
 from analysis.pipeline import CONDITIONS, evaluate_experiment
@@ -353,17 +353,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add = parser.add_argument
     add("--panel_dir", "--panel-dir", type=Path, default=PANEL_DIR,
         help="folder holding map<seed>/agent_models; the outputs are written there")  # fmt: skip
-    add("--maps", default=",".join(map(str, PANEL_MAP_SEEDS)),
-        help="map seeds, comma-separated (default: the panel's rule)")  # fmt: skip
+    add("--maps", type=int_list, default=list(PANEL_MAP_SEEDS),
+        help="map seeds, comma-separated, e.g. 641,4 (default: the panel's rule)")  # fmt: skip
     add("--num_episodes", "--num-episodes", type=int, default=1000,
         help="test episodes per trained seed and condition (1..5000)")  # fmt: skip
     add("--workers", type=int, default=min(2, available_cores()),
         help="processes evaluating maps in parallel (1..64)")  # fmt: skip
     args = parser.parse_args(argv)
-    try:
-        args.maps = [int(part) for part in args.maps.split(",") if part.strip()]
-    except ValueError:
-        parser.error(f"--maps must be comma-separated map seeds, got {args.maps!r}")
     if not args.maps or min(args.maps) < 0 or len(set(args.maps)) != len(args.maps):
         parser.error(f"--maps must be distinct non-negative integers, got {args.maps}")
     if not 1 <= args.num_episodes <= 5000:

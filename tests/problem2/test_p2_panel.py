@@ -220,7 +220,7 @@ def test_the_panel_evaluates_every_map_and_a_rerun_gives_the_same_bytes(
     ("argv", "message"),
     [
         (["--num_episodes", "0"], "--num_episodes must be an integer in 1..5000"),
-        (["--maps", "641,x"], "--maps must be comma-separated"),
+        (["--maps", "641,x"], "argument --maps: expected integers, got '641,x'"),
         (["--maps", "4,4"], "distinct non-negative"),
         (["--workers", "0"], "--workers must be an integer in 1..64"),
         (["--maps", "641,7"], "map7"),
