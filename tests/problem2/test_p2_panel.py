@@ -24,7 +24,8 @@ from analysis.stats import (
 from grid_maps import FREE, OBSTACLE, TARGET
 from rollout import EpisodeResults
 from studies import panel
-from studies.panel import EFFECTS, PANEL_MAP_SEEDS, arrival_measures, landmark_distance
+from studies.panel import EFFECTS, PANEL_MAP_SEEDS, landmark_distance
+from studies.panel_behaviour import arrival_measures
 
 from tests.conftest import PROBLEM2, ROOT
 
