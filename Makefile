@@ -8,7 +8,7 @@ RUNTIME_STAMP := $(VENV)/.runtime-installed
 DEV_STAMP     := $(VENV)/.dev-installed
 REPORT_STAMP  := $(VENV)/.report-installed
 
-.PHONY: all problem1 problem2 studies beyond p2-baselines p2-main p2-studies p2-map-pool \
+.PHONY: all problem1 problem2 studies beyond p2-baselines p2-main p2-studies p2-panel p2-map-pool \
 	p2-stability p2-memory p2-memory-levers p2-evaluate report \
 	test lint \
 	bench clean
@@ -51,10 +51,10 @@ p2-main: $(RUNTIME_STAMP)
 p2-evaluate: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) evaluate.py
 
-## The studies of the default task (about 17 min on 2 cores): the main experiment, the reward study
-## (both rewards, 3 modes x 10 seeds, checkpoints chosen by the trained reward's own return,
-## and the exact DP), messages without DIAL, a panel of maps; then their evaluation.
-studies: p2-main p2-studies p2-evaluate
+## The studies of the default task: the main experiment, the reward study (both rewards,
+## 3 modes x 10 seeds, checkpoints chosen by the trained reward's own return, and the exact
+## DP), messages without DIAL, then their evaluation, and the map panel (it evaluates itself).
+studies: p2-main p2-studies p2-evaluate p2-panel
 
 ## Beyond the default task (about 63 min on 2 cores): agents on a pool of generated maps, the stability
 ## study, agents with memory and the levers tried on them (each writes its own results;
@@ -68,9 +68,17 @@ p2-studies: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.reward_study
 	cd problem2 && $(PY) train.py --mode comm,full --comm_learning none --num_seeds 3 \
 		--overwrite --output_dir $(P2_STUDIES)/no_dial
-	cd problem2 && for map in 0 1 2 3 4; do \
-		$(PY) train.py --map_seed $$map --num_seeds 3 --overwrite \
-			--output_dir $(P2_STUDIES)/map_panel/map$$map || exit 1; done
+
+## Where does information enable coordination? The map panel: the assignment's map (641) and
+## the generator's map seeds 0-10 (studies/panel.py: PANEL_MAP_SEEDS), the main experiment's
+## recipe, 4 modes (independent, comm, distance, full) x training seeds 641-645 on each map;
+## then the panel's evaluation (about 30 min on 2 cores).
+PANEL_MAPS := 641 0 1 2 3 4 5 6 7 8 9 10
+p2-panel: $(RUNTIME_STAMP)
+	cd problem2 && for map in $(PANEL_MAPS); do \
+		$(PY) train.py --mode independent,comm,distance,full --map_seed $$map --num_seeds 5 \
+			--overwrite --output_dir $(P2_STUDIES)/panel/map$$map || exit 1; done
+	cd problem2 && $(PY) -m studies.panel
 
 ## Agents trained on a pool of 2000 generated maps, tested on 40 held-out maps (about 5 min).
 p2-map-pool: $(RUNTIME_STAMP)

@@ -178,9 +178,11 @@ class ProgressLine:
         self.show()
 
     def text(self) -> str:
+        elapsed = self.clock() - self.start
+        if not self.steps_per_run:  # jobs without env steps (e.g. evaluations): count, time
+            return f"[{self.runs_done}/{self.n_runs} runs] {elapsed:.0f} s"
         total = self.n_runs * self.steps_per_run
         done = sum(min(row["env_steps"], self.steps_per_run) for row in self.rows.values())
-        elapsed = self.clock() - self.start
         rate = done / elapsed if elapsed > 0 else 0.0
         eta = f"{(total - done) / rate / 60:.1f} min" if rate > 0 else "?"
         line = (

@@ -28,6 +28,7 @@ OPTIONAL_INPUTS = {
     "stability-study": "problem2/results/studies/stability/stability.json",
     "memory-study": "problem2/results/studies/memory/memory.json",
     "memory-levers": "problem2/results/studies/memory_levers/levers.json",
+    "panel-study": "problem2/results/studies/panel/panel.json",
 }
 
 

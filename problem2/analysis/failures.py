@@ -1,5 +1,6 @@
 """Who stands on the target when, and how test episodes fail, from recorded trajectories:
-the arrival measures every study uses (:func:`on_target`, :func:`arrivals`), the kind of each
+the arrival measures every study uses (:func:`on_target`, :func:`arrivals`, the homing of an
+agent whose partner waits on the target: :func:`homing_counts`), the kind of each
 failed episode (what the agents do at the end) and the decomposition of failures into
 navigation (an agent never reached the target) and timing (both did, never together)."""
 
@@ -44,6 +45,30 @@ def arrivals(positions: np.ndarray, lengths: np.ndarray, target: tuple[int, int]
     on = on_target(positions, lengths, target)
     exactly_one = on[:, 1:, 0] != on[:, 1:, 1]  # (E, T); False past the end (both off)
     return Arrivals(on, on.any(axis=1), on.argmax(axis=1), exactly_one.sum(axis=1))
+
+
+HOMING_KINDS = ("closer", "farther", "neither")
+
+
+def homing_counts(results: EpisodeResults, distances: np.ndarray) -> np.ndarray:
+    """Counts (3,) of ``HOMING_KINDS``, summed over both agents: the moves an agent made while
+    its partner stood on the target and it did not, by whether the move brought it closer
+    to the target, farther, or neither. ``distances`` (H, W): each cell's distance to the
+    target (0 on it), e.g. ``analysis.baselines.target_distances`` (shortest paths)."""
+    positions = results.trajectories["positions"]  # (E, T + 1, 2, 2)
+    distance = np.asarray(distances)[positions[..., 0], positions[..., 1]]  # (E, T + 1, 2)
+    on = distance == 0
+    horizon = positions.shape[1] - 1
+    steps = (np.arange(horizon)[None, :] < results.lengths[:, None])[..., None]  # (E, T, 1)
+    waiting = steps & on[:, :-1, ::-1] & ~on[:, :-1]  # partner on the target, agent not
+    change = distance[:, 1:] - distance[:, :-1]
+    return np.array([(waiting & op(change, 0)).sum() for op in (np.less, np.greater, np.equal)])
+
+
+def homing_shares(counts: np.ndarray | list[float]) -> dict[str, float]:
+    """Each kind's share of the counted moves (0 for every kind if none was counted)."""
+    total = max(float(np.sum(counts)), 1.0)
+    return {kind: float(c) / total for kind, c in zip(HOMING_KINDS, counts, strict=True)}
 
 
 FAILURE_KINDS = ("swapping", "parked", "looping", "other")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -72,11 +73,18 @@ MESSAGE_TEST = {
 @dataclass
 class ExperimentOutcome:
     """Everything evaluated for one experiment; ``runs`` keeps the recorded episodes of each
-    mode's best seed, for the figures."""
+    mode's best seed, for the figures; ``successes[mode][condition]`` (seeds, E) the
+    per-episode success of every seed, for contrasts between modes."""
 
     performance: dict
     communication: dict
     runs: dict[str, dict[str, EpisodeResults]] = field(default_factory=dict)
+    successes: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+
+
+# Extra measures of one seed's recorded test episodes: (its evaluator, {condition: episodes})
+# -> a JSON-ready dict, stored in the performance entry as per_seed[<seed>]["measures"].
+SeedMeasures = Callable[[MultiAgentEvaluator, dict[str, EpisodeResults]], dict]
 
 
 def aggregate(summaries: list[dict]) -> dict[str, Any]:
@@ -177,16 +185,22 @@ def last_weights_performance(
 
 
 def evaluate_mode(
-    experiment: Experiment, mode: str, num_episodes: int, epsilon: float
+    experiment: Experiment,
+    mode: str,
+    num_episodes: int,
+    epsilon: float,
+    seed_measures: SeedMeasures | None = None,
 ) -> tuple[dict, dict, dict[str, EpisodeResults], dict[str, np.ndarray]]:
     """Performance and communication entries of one mode, the best seed's episodes, and
     per condition the per-episode successes of every seed (seeds, E), for the mode
-    differences."""
+    differences; ``seed_measures`` adds its measures of each seed (see ``SeedMeasures``)."""
     per_seed_perf, per_seed_comm, seed_runs, evaluators = {}, {}, {}, {}
     for seed in experiment.seeds[mode]:
         evaluator = evaluators[seed] = experiment_evaluator(experiment, epsilon, mode, seed)
         runs = seed_runs[seed] = evaluator.run_conditions(num_episodes)
         per_seed_perf[str(seed)] = condition_summaries(evaluator, runs)
+        if seed_measures is not None:
+            per_seed_perf[str(seed)]["measures"] = seed_measures(evaluator, runs)
         last = last_weights_performance(experiment, mode, seed, num_episodes, epsilon)
         if last is not None:
             per_seed_perf[str(seed)]["last_weights"] = last
@@ -245,10 +259,14 @@ def aggregate_measures(per_seed: list[dict]) -> dict[str, Any]:
 
 
 def evaluate_experiment(
-    experiment: Experiment, num_episodes: int, epsilon: float
+    experiment: Experiment,
+    num_episodes: int,
+    epsilon: float,
+    seed_measures: SeedMeasures | None = None,
 ) -> ExperimentOutcome:
     """Every mode and seed of ``experiment`` beside the baseline policies (greedy; the
-    oracle also under key ``eps`` at ``epsilon``, so that steps compare like with like)."""
+    oracle also under key ``eps`` at ``epsilon``, so that steps compare like with like);
+    ``seed_measures``: extra measures of each seed (see ``SeedMeasures``)."""
     baselines = {}
     for name, policy in POLICIES.items():
         factory = partial(lambda grid, make: make(grid, EVAL_SEED), make=policy)
@@ -269,15 +287,14 @@ def evaluate_experiment(
         performance={**info, "baselines": baselines, "modes": {}},
         communication={"map_seed": info["map_seed"], "modes": {}},
     )
-    successes = {}
     for mode in experiment.seeds:
-        performance, communication, runs, successes[mode] = evaluate_mode(
-            experiment, mode, num_episodes, epsilon
+        performance, communication, runs, outcome.successes[mode] = evaluate_mode(
+            experiment, mode, num_episodes, epsilon, seed_measures
         )
         outcome.performance["modes"][mode] = performance
         outcome.communication["modes"][mode] = communication
         outcome.runs[mode] = runs
-    outcome.performance["mode_differences"] = differences_by_pair(successes)
+    outcome.performance["mode_differences"] = differences_by_pair(outcome.successes)
     return outcome
 
 

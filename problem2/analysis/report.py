@@ -34,13 +34,13 @@ def _table(header: list[str], rows: list[list[str]]) -> list[str]:
     return lines + ["| " + " | ".join(row) + " |" for row in rows]
 
 
-def _mode_rows(experiment: dict, prefix: str = "") -> list[list[str]]:
+def _mode_rows(experiment: dict) -> list[list[str]]:
     rows = []
     for entry in experiment["modes"].values():
         greedy, eps = entry["greedy"], entry["eps"]
         rows.append(
             [
-                prefix + entry["label"],
+                entry["label"],
                 _stat(greedy["success_rate"]),
                 f"{greedy['success_rate']['iqm']:.3f}",
                 _stat(eps["success_rate"]),
@@ -53,13 +53,13 @@ def _mode_rows(experiment: dict, prefix: str = "") -> list[list[str]]:
     return rows
 
 
-def _baseline_rows(experiment: dict, prefix: str = "") -> list[list[str]]:
+def _baseline_rows(experiment: dict) -> list[list[str]]:
     rows = []
     for name, summary in experiment["baselines"].items():
         explored = summary.get("eps", summary)  # the oracle is also run at ε; the others greedy
         rate, rate_eps = f"{summary['success_rate']:.3f}", f"{explored['success_rate']:.3f}"
         steps = _number(explored["mean_steps_to_success"], 1)
-        rows.append([prefix + name, rate, rate, rate_eps, rate_eps, "–", steps,
+        rows.append([name, rate, rate, rate_eps, rate_eps, "–", steps,
                      _number(explored["mean_return"])])  # fmt: skip
     return rows
 
@@ -96,22 +96,6 @@ def success_section(performance: dict) -> list[str]:
         "interquartile mean over seeds. Returns are under the assignment's reward (+10 both "
         "on the target, +2 on each step with exactly one on it, −0.1 otherwise), whatever "
         "reward the agents learned from.",
-        "",
-        *_table(SUCCESS_HEADER, rows),
-        "",
-    ]
-
-
-def panel_section(performance: dict) -> list[str]:
-    panel = {k: v for k, v in performance["experiments"].items() if k.startswith("map_panel/")}
-    if not panel:
-        return []
-    rows = []
-    for experiment in panel.values():
-        prefix = f"map {experiment['map_seed']} {tuple(experiment['target'])}: "
-        rows += _mode_rows(experiment, prefix) + _baseline_rows(experiment, prefix)
-    return [
-        "## Map panel (each mode trained and tested on the map)",
         "",
         *_table(SUCCESS_HEADER, rows),
         "",
@@ -339,7 +323,6 @@ def format_report(results: dict[str, Any], brief: bool = False) -> str:
     sections = [success_section(performance), differences_section(performance)]
     if not brief:
         sections += [
-            panel_section(performance),
             failure_section(performance),
             decomposition_section(performance),
         ]

@@ -5,8 +5,8 @@ maps and settings, and the exported TorchScript model pairs (loaded with
 Layout of an experiment root (written by ``train.py``):
 ``agent_models/<mode>_seed<seed>_agent_{A,B}.pt``, ``agent_models/<mode>_agent_{A,B}.pt``
 (the best seed), ``agent_models/map.json``, ``agent_models/hyperparameters.json``.
-Study roots (same layout) live under ``<root>/studies/``: ``per_step``, ``no_dial`` and
-``map_panel/map<K>``.
+Study roots (same layout) live under ``<root>/studies/``: ``per_step`` and ``no_dial``
+(the map panel's batches under ``studies/panel/`` are evaluated by ``studies/panel.py``).
 
 A batch written by ``train.py`` carries ``agent_models/manifest.json`` (modes, seeds, map,
 hyperparameters, the sha256 of every model file). Where it exists, exactly its runs are
@@ -79,7 +79,7 @@ def load_policy(path: str | Path) -> torch.jit.ScriptModule:
 class Experiment:
     """One training root: its map, settings and the (mode, seed) model pairs found."""
 
-    name: str  # "main", "per_step", "no_dial" or "map_panel/map<K>"
+    name: str  # "main", "per_step", "no_dial" (or a study's own name, e.g. "panel/map<K>")
     models_dir: Path
     settings: dict
     grid: np.ndarray
@@ -103,11 +103,6 @@ def study_model_dirs(checkpoint_dir: Path) -> list[tuple[str, Path]]:
     studies = checkpoint_dir.parent / "studies"
     candidates = [("main", checkpoint_dir), ("per_step", studies / "per_step" / "agent_models")]
     candidates.append(("no_dial", studies / "no_dial" / "agent_models"))
-    panel = studies / "map_panel"
-    if panel.is_dir():
-        maps = [p for p in panel.iterdir() if re.fullmatch(r"map\d+", p.name)]
-        for path in sorted(maps, key=lambda p: int(p.name[3:])):
-            candidates.append((f"map_panel/{path.name}", path / "agent_models"))
     return candidates
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -111,27 +112,30 @@ def _resampled_episode_weights(rng: np.random.Generator, size: int, episodes: in
     return counts.reshape(size, episodes).astype(np.float32)
 
 
-def mode_differences(
+def mode_contrasts(
     successes: dict[str, np.ndarray],
+    contrasts: dict[str, dict[str, float]],
     n_resamples: int = BOOTSTRAP_RESAMPLES,
     seed: int = BOOTSTRAP_SEED,
     chunk: int = 1_000,
-) -> dict[str, dict[str, float | list | bool | int | str]]:
-    """Difference of success for each pair of modes, later minus earlier in the order of
-    ``successes``, with its own 95 % bootstrap CI; keys ``"<later>_minus_<earlier>"``.
+) -> dict[str, dict[str, Any]]:
+    """Each contrast ``{mode: coefficient}`` of the modes' success with its own 95 %
+    bootstrap CI, e.g. ``{"full": 1, "comm": -1, "distance": -1, "independent": 1}`` (an
+    interaction); keys as in ``contrasts``.
 
     ``successes[mode]`` (S_mode, E) holds the per-episode success (0 or 1) of each training
     seed of the mode on the same E fixed test episodes: column e is the same start cells and
     exploration draws for every seed of every mode. A mode's success is the mean over its
-    seeds of each seed's success rate; ``mean`` is the difference of two of them.
+    seeds of each seed's success rate; ``mean`` is the sum of the coefficients times them.
 
     What one bootstrap resample redraws, with replacement:
       * the test episodes: one draw of E episode indices, *shared* by every mode and seed
-        (the pairing by test episode set: both modes of a pair are scored on the same
-        resampled episodes, so the episodes' difficulty cancels in the difference);
+        (the pairing by test episode set: every mode of a contrast is scored on the same
+        resampled episodes, so the episodes' difficulty cancels);
       * the training seeds: S_mode seeds of each mode, independently between modes (the
         seeds of two modes are unrelated training runs).
-    ``ci95`` is the percentile interval of the resampled differences; ``ci95_seeds_only``
+    Every mode of ``successes`` is resampled, in its order, whether a contrast uses it or
+    not. ``ci95`` is the percentile interval of the resampled contrasts; ``ci95_seeds_only``
     keeps the episode set fixed and redraws the seeds only (the spread due to training
     alone). ``established``: ``ci95`` excludes 0.
     """
@@ -139,9 +143,14 @@ def mode_differences(
     shapes = {a.shape[1] for a in rates.values() if a.ndim == 2}
     if len(shapes) != 1 or any(a.ndim != 2 or len(a) == 0 for a in rates.values()):
         raise ValueError(
-            "mode_differences needs (seeds, E) arrays with the same E, got "
+            "mode contrasts need (seeds, E) arrays with the same E, got "
             f"{ {m: a.shape for m, a in rates.items()} }"
         )
+    for name, coefficients in contrasts.items():
+        if not coefficients or not set(coefficients) <= set(rates):
+            raise ValueError(
+                f"contrast {name!r} uses modes {sorted(coefficients)}; available: {sorted(rates)}"
+            )
     episodes = shapes.pop()
     rng = np.random.default_rng(seed)
     both = {m: [] for m in rates}
@@ -156,25 +165,115 @@ def mode_differences(
             both[mode].append((picks * per_seed).sum(axis=1) / count)
             seeds_only[mode].append(picks @ values.mean(axis=1) / count)
     tail = (1 - CONFIDENCE) / 2
-    names = list(rates)
     result = {}
-    for k, earlier in enumerate(names):
-        for later in names[k + 1 :]:
-            spread = np.concatenate(both[later]) - np.concatenate(both[earlier])
-            fixed = np.concatenate(seeds_only[later]) - np.concatenate(seeds_only[earlier])
-            low, high = np.quantile(spread, [tail, 1 - tail])
-            fixed_low, fixed_high = np.quantile(fixed, [tail, 1 - tail])
-            result[f"{later}_minus_{earlier}"] = {
-                "first": later,
-                "second": earlier,
-                "mean": float(
-                    rates[later].astype(np.float64).mean(axis=1).mean()
-                    - rates[earlier].astype(np.float64).mean(axis=1).mean()
-                ),
-                "ci95": [float(low), float(high)],
-                "ci95_seeds_only": [float(fixed_low), float(fixed_high)],
-                "established": bool(low > 0 or high < 0),
-                "seeds": [len(rates[later]), len(rates[earlier])],
-                "episodes": episodes,
-            }
+    for name, coefficients in contrasts.items():
+        spread = fixed = mean = 0.0
+        for mode, coefficient in coefficients.items():
+            spread = spread + coefficient * np.concatenate(both[mode])
+            fixed = fixed + coefficient * np.concatenate(seeds_only[mode])
+            mean = mean + coefficient * rates[mode].astype(np.float64).mean(axis=1).mean()
+        low, high = np.quantile(spread, [tail, 1 - tail])
+        fixed_low, fixed_high = np.quantile(fixed, [tail, 1 - tail])
+        result[name] = {
+            "coefficients": dict(coefficients),
+            "mean": float(mean),
+            "ci95": [float(low), float(high)],
+            "ci95_seeds_only": [float(fixed_low), float(fixed_high)],
+            "established": bool(low > 0 or high < 0),
+            "seeds": {mode: len(rates[mode]) for mode in coefficients},
+            "episodes": episodes,
+        }
     return result
+
+
+def mode_differences(
+    successes: dict[str, np.ndarray],
+    n_resamples: int = BOOTSTRAP_RESAMPLES,
+    seed: int = BOOTSTRAP_SEED,
+    chunk: int = 1_000,
+) -> dict[str, dict[str, float | list | bool | int | str]]:
+    """Difference of success for each pair of modes, later minus earlier in the order of
+    ``successes``, with its own 95 % bootstrap CI; keys ``"<later>_minus_<earlier>"``.
+
+    The contrasts ``later − earlier`` of :func:`mode_contrasts` (its resampling: test
+    episodes shared by every mode, seeds redrawn within each mode), each entry with
+    ``first`` (later), ``second`` (earlier) and ``seeds`` as [S_later, S_earlier].
+    """
+    names = list(successes)
+    pairs = {
+        f"{later}_minus_{earlier}": (later, earlier)
+        for k, earlier in enumerate(names)
+        for later in names[k + 1 :]
+    }
+    contrasts = mode_contrasts(
+        successes,
+        {key: {later: 1.0, earlier: -1.0} for key, (later, earlier) in pairs.items()},
+        n_resamples,
+        seed,
+        chunk,
+    )
+    result = {}
+    for key, (later, earlier) in pairs.items():
+        entry = contrasts[key]
+        result[key] = {"first": later, "second": earlier} | {
+            k: entry[k] for k in ("mean", "ci95", "ci95_seeds_only", "established")
+        }
+        result[key] |= {"seeds": [entry["seeds"][later], entry["seeds"][earlier]]}
+        result[key]["episodes"] = entry["episodes"]
+    return result
+
+
+def average_ranks(values: Sequence[float] | np.ndarray) -> np.ndarray:
+    """Ranks (..., n) from 1 along the last axis of ``values`` (..., n); tied values share
+    the mean of the ranks they occupy (e.g. [10, 20, 20, 30] -> [1, 2.5, 2.5, 4])."""
+    v = np.asarray(values, dtype=np.float64)
+    below = (v[..., None, :] < v[..., :, None]).sum(axis=-1)
+    equal = (v[..., None, :] == v[..., :, None]).sum(axis=-1)  # itself included
+    return below + (equal + 1) / 2
+
+
+def _rank_correlations(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Spearman's rho along the last axis of x, y (..., n); NaN where either is constant."""
+    rx, ry = average_ranks(x), average_ranks(y)
+    rx = rx - rx.mean(axis=-1, keepdims=True)
+    ry = ry - ry.mean(axis=-1, keepdims=True)
+    scale = np.sqrt((rx * rx).sum(axis=-1) * (ry * ry).sum(axis=-1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(scale > 0, (rx * ry).sum(axis=-1) / scale, np.nan)
+
+
+def spearman(x: Sequence[float], y: Sequence[float]) -> float | None:
+    """Spearman's rank correlation of paired samples x, y (n,): the Pearson correlation of
+    their average ranks; None if either sample is constant (the correlation is undefined)."""
+    rho = float(_rank_correlations(np.asarray(x, float), np.asarray(y, float)))
+    return None if np.isnan(rho) else rho
+
+
+def spearman_interval(
+    x: Sequence[float],
+    y: Sequence[float],
+    n_resamples: int = BOOTSTRAP_RESAMPLES,
+    seed: int = BOOTSTRAP_SEED,
+) -> dict[str, Any]:
+    """:func:`spearman` of x, y (n,) with a percentile bootstrap 95 % interval: each resample
+    draws n pairs with replacement. A resample in which x or y is constant has no
+    correlation: it is left out and counted in ``undefined_resamples`` (``ci95`` is None
+    if every resample is)."""
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    if x.shape != y.shape or x.ndim != 1:
+        raise ValueError(
+            f"spearman_interval needs two samples of one length, got {x.shape}, {y.shape}"
+        )
+    rng = np.random.default_rng(seed)
+    picks = rng.integers(0, len(x), size=(n_resamples, len(x)))
+    resampled = _rank_correlations(x[picks], y[picks])  # (n_resamples,)
+    defined = resampled[~np.isnan(resampled)]
+    tail = (1 - CONFIDENCE) / 2
+    interval = np.quantile(defined, [tail, 1 - tail]).tolist() if defined.size else None
+    return {
+        "rho": spearman(x, y),
+        "ci95": interval,
+        "n": len(x),
+        "resamples": n_resamples,
+        "undefined_resamples": int(n_resamples - defined.size),
+    }

@@ -290,15 +290,17 @@ def test_studies_are_discovered_with_their_labels(tiny_root: Path, tmp_path: Pat
     manifest = json.loads((study / "manifest.json").read_text())  # the batch's settings
     manifest["hyperparameters"]["comm_learning"] = "none"
     (study / "manifest.json").write_text(json.dumps(manifest))
-    panel = tmp_path / "studies" / "map_panel" / "map3" / "agent_models"
-    panel.mkdir(parents=True)
+    per_step = tmp_path / "studies" / "per_step" / "agent_models"  # no manifest: defaults
+    per_step.mkdir(parents=True)
     for path in (tiny_root / "agent_models").glob("full_seed641_*"):
-        shutil.copy(path, panel)
+        shutil.copy(path, per_step)
+    panel = tmp_path / "studies" / "panel" / "map3"  # the map panel evaluates itself
+    shutil.copytree(tiny_root / "agent_models", panel / "agent_models")
     experiments = discover_experiments(tmp_path / "agent_models")
-    assert [e.name for e in experiments] == ["main", "no_dial", "map_panel/map3"]
-    assert experiments[1].label("comm") == "comm (message untrained (no DIAL))"
-    assert experiments[2].seeds == {"full": [641]}
-    assert np.array_equal(experiments[2].grid, experiments[0].grid)  # defaults: map seed 641
+    assert [e.name for e in experiments] == ["main", "per_step", "no_dial"]
+    assert experiments[2].label("comm") == "comm (message untrained (no DIAL))"
+    assert experiments[1].seeds == {"full": [641]}
+    assert np.array_equal(experiments[1].grid, experiments[0].grid)  # defaults: map seed 641
 
 
 def _quick(models: Path, *extra: str) -> list[str]:

@@ -13,10 +13,11 @@ import numpy as np
 import torch
 from analysis.baselines import POLICIES
 from analysis.episodes import recorded_episodes
+from analysis.failures import homing_counts
 from analysis.held_out import held_out_maps
 from analysis.information import BIN_COUNTS, causal_influence, message_bins
 from analysis.interventions import intervene, intervention_table, real_steps
-from grid_maps import HELD_OUT_MAP_SEEDS
+from grid_maps import HELD_OUT_MAP_SEEDS, TARGET
 from models import DISTANCE_INDEX, MESSAGE_INDEX
 from rollout import EVAL_EPSILON, EVAL_SEED, EpisodeResults, run_episodes
 from vector_env import VectorMultiAgentEnv
@@ -31,22 +32,10 @@ CHANNELS = {
 PROBES = ("same_step", "constant_mean", "constant_0", "constant_1")
 
 
-def homing_counts(results: EpisodeResults, target: tuple[int, int]) -> np.ndarray:
-    """(closer, farther, neither) counts (2,) summed over agents of the moves made while the
-    partner stood on the target and the agent did not (Manhattan distance to the target)."""
-    positions = results.trajectories["positions"]  # (E, T + 1, 2, 2)
-    distance = np.abs(positions - np.asarray(target)).sum(-1)  # (E, T + 1, 2)
-    on = distance == 0
-    steps = real_steps(results)[..., None]  # (E, T, 1)
-    waiting = steps & on[:, :-1, ::-1] & ~on[:, :-1]  # partner on the target, agent not
-    change = distance[:, 1:] - distance[:, :-1]
-    return np.array(
-        [
-            (waiting & (change < 0)).sum(),
-            (waiting & (change > 0)).sum(),
-            (waiting & (change == 0)).sum(),
-        ]
-    )
+def manhattan_distances(grid: np.ndarray) -> np.ndarray:
+    """Manhattan distance (H, W) of every cell to the target (the homing measure here)."""
+    target = np.argwhere(np.asarray(grid) == TARGET)[0]
+    return np.abs(np.indices(np.shape(grid)) - target[:, None, None]).sum(axis=0)
 
 
 def message_on_off(results: EpisodeResults, target: tuple[int, int]) -> np.ndarray:
@@ -139,7 +128,7 @@ def held_out_results(agents: tuple, mode: str, episodes: int, max_steps: int) ->
                 for key, value in memory_cic(agents, real, EVAL_EPSILON, seed=map_seed).items():
                     cic[key].append(value)
             if label == "eps":
-                homing += homing_counts(real, env.target_position)
+                homing += homing_counts(real, manhattan_distances(grid))
                 encoding += message_on_off(real, env.target_position)
             received = real.trajectories["observations"][:, :-1][real_steps(real)]  # (M, 2, D)
             for name in probes:
@@ -169,11 +158,6 @@ def beacon_homing(episodes: int, max_steps: int) -> list[float]:
         env = VectorMultiAgentEnv(episodes, grid=grid, max_steps=max_steps)
         policy = POLICIES["beacon_explorer"](grid, EVAL_SEED + map_seed)
         counts += homing_counts(
-            recorded_episodes(env, policy, episodes, seed=EVAL_SEED), env.target_position
+            recorded_episodes(env, policy, episodes, seed=EVAL_SEED), manhattan_distances(grid)
         )
     return counts.tolist()
-
-
-def shares(counts: list[float]) -> dict[str, float]:
-    total = max(sum(counts), 1.0)
-    return dict(zip(("closer", "farther", "neither"), (c / total for c in counts), strict=True))

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from analysis.failures import homing_shares
 from analysis.runs import load_policy
 from analysis.stats import seed_paired_differences, seed_statistics
 from batch_io import (
@@ -52,7 +53,6 @@ from studies.memory.held_out_tests import (
     CONDITIONS,
     beacon_homing,
     held_out_results,
-    shares,
 )
 from studies.memory.learner import TRANSITIONS_PER_EPISODE, RecurrentTrainer
 from studies.staging import best_env_steps, best_selection, check_field, staged_output, write_timing
@@ -124,7 +124,7 @@ def summarise(
             for name in mine[0]["interventions"]
         }
         homing = np.sum([r["homing_counts_eps"] for r in mine], 0).tolist()
-        entry["homing_share_eps"], entry["homing_counts_eps"] = shares(homing), homing
+        entry["homing_share_eps"], entry["homing_counts_eps"] = homing_shares(homing), homing
         if mode in CHANNELS["message"][1]:
             entry["cic_bits"] = {
                 k: seed_statistics([r["cic_greedy_episodes"][k] for r in mine])
@@ -177,7 +177,7 @@ def summarise(
             "modes": modes,
             "differences": differences,
             "memory_minus_no_memory": memory_gain,
-            "beacon_explorer_homing_share_greedy": shares(beacon),
+            "beacon_explorer_homing_share_greedy": homing_shares(beacon),
         },
         "runs": {
             f"{r['mode']}_seed{r['seed']}": {k: v for k, v in r.items() if k != "seconds"}
