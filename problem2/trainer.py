@@ -40,6 +40,7 @@ from rollout import (
     select_best,
 )
 from train_config import TRAINABLE_MODES
+from transition_batch import TransitionBatch, sample_batch
 from vector_env import VectorMultiAgentEnv
 
 LAST_WEIGHTS = "last_weights"  # subfolder of agent_models/: each run's final weights (keep_best)
@@ -64,7 +65,8 @@ LOG_FIELDS = (
 def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndarray | torch.Tensor:
     """Zero the inputs that ablation ``mode`` hides (``models.MASKED_INPUTS``):
     ``independent`` the message and the distance (elements 9 and 10 for a 3 x 3 window),
-    ``comm`` the distance, ``full`` none. Any leading shape (..., obs_dim)."""
+    ``comm`` the distance, ``distance`` the message, ``full`` none. Any leading shape
+    (..., obs_dim)."""
     mask = observation_mask(mode, obs.shape[-1])
     if isinstance(obs, torch.Tensor):
         return obs * torch.tensor(mask)
@@ -79,53 +81,6 @@ class MapSource(Protocol):
     grid_size: tuple[int, int]
     obs_window: int
     max_steps: int
-
-
-@dataclass
-class TransitionBatch:
-    """B joint transitions as tensors, agent axis first (A, then B): views of one gathered
-    block of replay rows, refilled in place at every update."""
-
-    obs: torch.Tensor  # (2, B, D) observations
-    next_obs: torch.Tensor  # (2, B, D) the observations the TD target bootstraps from
-    last_obs: torch.Tensor  # (2, B, D) observations one step before next_obs (= obs if n = 1)
-    prev_obs: torch.Tensor  # (2, B, D) each agent's observation one step earlier (DIAL)
-    has_prev: torch.Tensor  # (B,) 1.0 where prev_obs is stored, else 0.0
-    actions: torch.Tensor  # (2, B) int64
-    reward: torch.Tensor  # (B,) the team reward (k-step discounted)
-    done: torch.Tensor  # (B,) 1.0 where both agents reached the target (terminal)
-    discount: torch.Tensor  # (B,) γ^k of the k-step return, 0 where terminal
-    weights: torch.Tensor  # (B,) importance weights (ones without prioritised replay)
-
-    @classmethod
-    def of_rows(cls, rows: torch.Tensor, layout: dict[str, slice], obs_dim: int) -> TransitionBatch:
-        """Views of ``rows`` (B, row width) in the replay buffer's ``layout``. Fields the
-        rows lack (transitions pushed by hand) are zeros, ``last_obs`` then ``obs``.
-        ``actions`` is int64, so a copy that :meth:`MultiAgentTrainer.sample` fills."""
-        b = rows.shape[0]
-
-        def pair(name_a: str) -> torch.Tensor:  # columns of X_A then X_B -> (2, B, D)
-            if name_a not in layout:
-                return torch.zeros(2, b, obs_dim)
-            first = layout[name_a].start
-            return rows[:, first : first + 2 * obs_dim].view(b, 2, obs_dim).transpose(0, 1)
-
-        def column(name: str) -> torch.Tensor:
-            return rows[:, layout[name].start] if name in layout else torch.zeros(b)
-
-        obs = pair("state_A")
-        return cls(
-            obs=obs,
-            next_obs=pair("next_state_A"),
-            last_obs=pair("last_state_A") if "last_state_A" in layout else obs,
-            prev_obs=pair("prev_state_A"),
-            has_prev=column("has_prev"),
-            actions=torch.zeros(2, b, dtype=torch.int64),
-            reward=column("reward"),
-            done=column("done"),
-            discount=column("discount"),
-            weights=torch.ones(b),
-        )
 
 
 @dataclass
@@ -388,19 +343,8 @@ class MultiAgentTrainer(CourseSkeletonAPI):
         return loss_value
 
     def sample(self, batch_size: int) -> tuple[TransitionBatch, np.ndarray]:
-        """A batch from the replay buffer, its rows gathered (one copy) into one tensor that
-        the batch's fields view, and the replay slots (B,) it came from."""
-        layout = self.replay_buffer.layout
-        rows = torch.empty(batch_size, max(columns.stop for columns in layout.values()))
-        batch = TransitionBatch.of_rows(rows, layout, self.obs_dim)
-        _, weights, slots = self.replay_buffer.sample_rows(batch_size, rows.numpy())
-        first = layout["action_A"].start
-        batch.actions.copy_(rows[:, first : first + 2].T)  # A's column then B's
-        if "discount" not in layout:  # transitions pushed by hand: d = γ (1 − done)
-            batch.discount.copy_(self.cfg.gamma * (1.0 - batch.done))
-        if self.cfg.prioritized:
-            batch.weights.copy_(torch.from_numpy(weights))
-        return batch, slots
+        """A batch from the replay buffer and the replay slots (B,) it came from."""
+        return sample_batch(self.replay_buffer, batch_size, self.obs_dim, self.cfg.gamma)
 
     def td_loss(self, batch: TransitionBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The Huber TD loss, summed over both agents (the assignment's L = L_A + L_B).
