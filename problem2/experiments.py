@@ -12,6 +12,7 @@ import hashlib
 import json
 import os
 import shutil
+import textwrap
 import time
 from pathlib import Path
 from typing import Any
@@ -34,7 +35,12 @@ from vector_env import VectorMultiAgentEnv
 PROBLEM2 = Path(__file__).resolve().parent
 MANIFEST = "manifest.json"
 INTERRUPTED = "interrupted"
-MODE_COLOURS = {"independent": "#1b9e77", "comm": "#d95f02", "distance": "#e7298a", "full": "#7570b3"}
+MODE_COLOURS = {
+    "independent": "#1b9e77",
+    "comm": "#d95f02",
+    "distance": "#e7298a",
+    "full": "#7570b3",
+}
 PER_RUN_SETTINGS = ("mode", "seed", "num_seeds", "seeds")  # the manifest lists modes, seeds
 
 
@@ -292,19 +298,27 @@ def install(staging: Path, root: Path) -> None:
 # ------------------------------------------------------------------------------- figures
 CURVE_PANELS = (
     ("eval_success_eps", "success rate", (0.0, 1.02)),
-    ("eval_return_eps", "average episode reward", None),
-)  # validation episodes at ε = 0.05, the reward trained on
+    ("eval_return_eps", "episode return", None),
+)  # validation episodes at ε = 0.05
+CURVE_REWARDS = {  # reward_mode -> the reward the curves' return sums
+    "goal": "goal reward (+10 when both agents stand on the target, −0.1 on every other step)",
+    "per_step": "assignment's reward (+10 both on the target, +2 a step with one on it, else −0.1)",
+    "arrival": "arrival reward (+10 both on the target, +2 an agent's first arrival, else −0.1)",
+}
 
 
 def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], title: str) -> None:
     """Validation success and return (ε = 0.05) against env steps, one column per mode:
     every seed as a thin line (its last point is the weights the run ended with), the mean
-    over seeds and the interquartile band."""
+    over seeds and the interquartile band; 6.5 in wide, as the report prints it. The reward
+    summed is named from the batch's ``agent_models/hyperparameters.json``."""
     from matplotlib.figure import Figure  # here: a worker process never needs matplotlib
+    from matplotlib.lines import Line2D
     from matplotlib.ticker import FuncFormatter
 
-    fig = Figure(figsize=(4.0 * len(modes), 6.0), layout="constrained")
-    axes = np.asarray(fig.subplots(2, len(modes), sharey="row", squeeze=False))
+    settings = json.loads((logs_dir.parent / "agent_models" / "hyperparameters.json").read_bytes())
+    fig = Figure(figsize=(6.5, 4.9), layout="constrained")
+    axes = np.asarray(fig.subplots(2, len(modes), sharex=True, sharey="row", squeeze=False))
     for column, mode in enumerate(modes):
         logs = [read_csv(logs_dir / f"{run_name(mode, seed)}.csv") for seed in seeds]
         length = min(len(log) for log in logs)
@@ -315,18 +329,27 @@ def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], tit
             for run in values:
                 ax.plot(steps, run, color=colour, alpha=0.35, linewidth=0.7)
             low, high = np.percentile(values, [25, 75], axis=0)
-            ax.fill_between(steps, low, high, color=colour, alpha=0.25, label="interquartile")
-            ax.plot(steps, values.mean(axis=0), color=colour, linewidth=2.2, label="mean")
+            ax.fill_between(steps, low, high, color=colour, alpha=0.25, linewidth=0)
+            ax.plot(steps, values.mean(axis=0), color=colour, linewidth=2.0)
             if limits:
                 ax.set_ylim(*limits)
-            if column == 0:
-                ax.set_ylabel(f"{label}\n(validation, ε = 0.05)")
+            ax.set_ylabel(label if column == 0 else "", fontsize=9)
             ax.grid(True, alpha=0.3)
-        axes[0, column].set_title(f"{mode} ({len(seeds)} seeds, thin: each seed)")
-        axes[1, column].set_xlabel("environment steps")
-        for ax in axes[:, column]:  # "100k": full numbers would run into each other
+            ax.tick_params(labelsize=8)
+            # "100k": full numbers would run into each other
             ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x / 1000:g}k" if x else "0"))
-    axes[0, 0].legend(loc="lower right")
-    fig.suptitle(title)
+        axes[0, column].set_title(f"{mode} ({len(seeds)} seeds)", fontsize=9)
+        axes[1, column].set_xlabel("environment steps", fontsize=9)
+    legend = [
+        Line2D([], [], color="0.4", lw=0.7, label="one seed"),
+        Line2D([], [], color="0.4", alpha=0.3, lw=7, label="interquartile range over seeds"),
+        Line2D([], [], color="0.4", lw=2.0, label="mean over seeds"),
+    ]
+    fig.legend(handles=legend, loc="outside lower center", ncols=3, fontsize=8, frameon=False)
+    reward = CURVE_REWARDS[settings["reward_mode"]]
+    unseen = ", without the arrival term (only learning sees it)"
+    words = f"Validation episodes at ε = 0.05; return: the {reward} summed over an episode"
+    words += unseen if settings["target_potential"] > 0 else ""
+    fig.suptitle(f"{title}\n{textwrap.fill(words + '.', width=100)}", fontsize=9)
     with temporary_path_for(logs_dir / "training_curves.png") as temporary:
         fig.savefig(temporary, format="png", dpi=150)
