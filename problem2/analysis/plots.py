@@ -199,15 +199,7 @@ def plot_trajectories(
         if messages is not None:
             fig.get_layout_engine().set(h_pad=0.08, hspace=0.06)  # titles clear of the row above
             for means, row_axes in zip(messages, axes[:, 2:], strict=True):
-                low, high = message_range(means)
-                for agent, ax in enumerate(row_axes):
-                    image = draw_message_map(ax, grid, means[agent], low, high)
-                    ax.set_title(f"message sent by {'AB'[agent]}", fontsize=MIN_FONT)
-                bar = fig.colorbar(image, ax=row_axes, shrink=0.85, aspect=12)
-                bar.ax.yaxis.set_major_locator(MaxNLocator(4))
-                digits = max(2, int(np.ceil(-np.log10(high - low))) + 1)
-                bar.ax.yaxis.set_major_formatter(StrMethodFormatter(f"{{x:.{digits}f}}"))
-                bar.set_label("mean message", fontsize=MIN_FONT)
+                draw_message_row(fig, row_axes, grid, means, [f"message sent by {a}" for a in "AB"])
             for ax in axes[:, 1:].flat:
                 ax.set_ylabel("")
                 ax.set_yticklabels([])
@@ -215,6 +207,22 @@ def plot_trajectories(
                 ax.set_xlabel("")
                 ax.set_xticklabels([])
         return save_figure(fig, path, dpi=200 if messages is not None else 120)
+
+
+def draw_message_row(
+    fig: Figure, row_axes: np.ndarray, grid: np.ndarray, means: np.ndarray, titles: list[str]
+) -> None:
+    """Both agents' message maps (``means`` (2, H, W)) on ``row_axes``, coloured over the
+    row's range (:func:`message_range`), with the row's colour bar and its values."""
+    low, high = message_range(means)
+    for agent, ax in enumerate(row_axes):
+        image = draw_message_map(ax, grid, means[agent], low, high)
+        ax.set_title(titles[agent], fontsize=MIN_FONT)
+    bar = fig.colorbar(image, ax=row_axes, shrink=0.85, aspect=12)
+    bar.ax.yaxis.set_major_locator(MaxNLocator(4))
+    digits = max(2, int(np.ceil(-np.log10(high - low))) + 1)  # ticks that differ when printed
+    bar.ax.yaxis.set_major_formatter(StrMethodFormatter(f"{{x:.{digits}f}}"))
+    bar.set_label("mean message", fontsize=MIN_FONT)
 
 
 def message_range(means: np.ndarray) -> tuple[float, float]:
@@ -301,20 +309,17 @@ def draw_message_map(
 def plot_message_heatmap(
     panels: list[tuple[str, np.ndarray]], grid: np.ndarray, path: str | Path
 ) -> Path:
-    """One row per (label, mean message (2, H, W)); columns agent A and agent B. Cells an
-    agent never sent from are light grey, obstacles dark grey, the target a white star."""
+    """One row per (label, mean message (2, H, W)); columns agent A and agent B, each row
+    on its own colour scale (its bar beside it). Cells an agent never sent from are light
+    grey, obstacles dark grey, the target a white star."""
     with legible():
         fig = Figure(
             figsize=(WIDTHS["message_heatmap"], 3.0 * len(panels) + 0.9), layout="constrained"
         )
         axes = np.atleast_2d(fig.subplots(len(panels), 2))
-        image = None
         for (label, means), row_axes in zip(panels, axes, strict=True):
-            for agent, ax in enumerate(row_axes):
-                image = draw_message_map(ax, grid, means[agent])
-                ax.set_title(f"{label}: sent by {'AB'[agent]}")
-        if image is not None:
-            fig.colorbar(image, ax=axes, shrink=0.8, label="mean message sent (0 to 1)")
+            titles = [f"{label}: sent by {agent}" for agent in "AB"]
+            draw_message_row(fig, row_axes, grid, means, titles)
         fig.suptitle("Mean message sent from each cell (greedy test episodes, best seed)")
         fig.supxlabel("white star: target; dark grey: obstacle; light grey: never visited")
         return save_figure(fig, path, dpi=200)
