@@ -302,8 +302,8 @@ CURVE_PANELS = (
 )  # validation episodes at ε = 0.05
 CURVE_REWARDS = {  # reward_mode -> the reward the curves' return sums
     "goal": "goal reward (+10 when both agents stand on the target, −0.1 on every other step)",
-    "per_step": "assignment's reward (+10 both on the target, +2 a step with one on it, else −0.1)",
-    "arrival": "arrival reward (+10 both on the target, +2 an agent's first arrival, else −0.1)",
+    "per_step": "assignment's reward (+10 both on target, +2 per step one is on it, else −0.1)",
+    "arrival": "arrival reward (+10 both on target, +2 when an agent first arrives, else −0.1)",
 }
 
 
