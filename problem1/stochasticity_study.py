@@ -71,12 +71,13 @@ def detour_states(deterministic: dict[str, Any], noisy: dict[str, Any], gamma: f
 
 
 def plot_policies(results: list[dict[str, Any]]) -> Figure:
-    """One value heatmap with policy arrows per drift level, on a shared colour scale."""
+    """One value heatmap per drift level on a shared colour scale, with each cell's value,
+    the policy's arrows and the detour states (``detour_states``) framed."""
     visualizer = GridWorldVisualizer()
     decision = ~visualizer.absorbing_cells.reshape(-1)  # goal and obstacles are fixed at 0
     all_values = np.concatenate([np.array(r["values"])[decision] for r in results])
     fig = Figure(figsize=(6.5, 5.4), layout="constrained")
-    axes = fig.subplots(2, 3)
+    axes = fig.subplots(2, 3, sharex=True, sharey=True)
     for result, ax in zip(results, axes.flat, strict=True):
         image = visualizer.draw_grid(
             ax,
@@ -84,16 +85,20 @@ def plot_policies(results: list[dict[str, Any]]) -> Figure:
             np.array(result["policy"]),
             f"drift {result['drift']:.2f} (intended {result['prob_intended']:.1f})\n"
             f"V(start) = {result['v_start']:.2f}",
-            annotate=False,
             vmin=float(all_values.min()),
             vmax=float(all_values.max()),
             compact=True,
+            detours=result["detour_states"],
         )
+    for ax in axes[:, 1:].flat:
+        ax.set_ylabel("")
+    for ax in axes[0]:
+        ax.set_xlabel("")
     colour_bar = fig.colorbar(image, ax=axes, shrink=0.6)
     colour_bar.set_label("V*(s)  (expected discounted return)", fontsize=9)
-    colour_bar.ax.tick_params(labelsize=8)
+    colour_bar.ax.tick_params(labelsize=9)
     fig.suptitle("Optimal values and policy as the transitions get noisier", fontsize=11)
-    visualizer.add_cell_legend(fig)
+    visualizer.add_cell_legend(fig, detours=True)
     return fig
 
 

@@ -13,6 +13,7 @@ text of at least 8 pt.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -23,18 +24,15 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure  # figures without pyplot: no GUI backend, no global state
 from matplotlib.patches import Patch, Rectangle
 
-CELL_STYLE = {  # edge colour, tag in a large panel, legend entry
-    "goal": ("#1a9641", "GOAL", "goal: +10, episode ends"),
-    "penalty": ("#d7191c", "PENALTY", "penalty cell: −5"),
-    "start": ("#2b83ba", "START", "start"),
+CELL_STYLE = {  # frame colour, legend entry
+    "goal": ("#1a9641", "goal: +10, episode ends"),
+    "penalty": ("#d7191c", "penalty cell: −5"),
+    "start": ("#2b83ba", "start"),
 }
-TAG_FONT = 8  # pt; every figure is drawn at the width the report places it (1:1)
+FREE_CELL_LABEL = "any other cell: −0.1"
+DETOUR_LABEL = "detour: a worse move without drift"
 VALUE_FONT = 9
-SMALL_FONT = 8  # the smallest text in any figure
-REWARD_NOTE = (
-    "Entering a cell pays −0.1, a PENALTY cell −5, the GOAL +10\n"
-    "(episode ends); black cells are obstacles."
-)
+SMALL_FONT = 8  # the smallest text in any figure, in points at the width the report prints it
 
 
 class GridWorldVisualizer:
@@ -64,13 +62,15 @@ class GridWorldVisualizer:
         vmin: float | None = None,
         vmax: float | None = None,
         compact: bool = False,
+        detours: Iterable[int] = (),
     ):
         """Draw one grid on ``ax``: optional value heatmap (S,), optional arrows (S,).
 
-        Obstacles are black; the goal, penalty and start cells are framed in colour and,
-        unless ``compact`` (a small panel of a multi-panel figure, explained by
-        :meth:`add_cell_legend`), tagged with their name. Returns the heatmap image (for a
-        colour bar), or None.
+        Obstacles are black; the goal, penalty and start cells are framed in colour (explained
+        by :meth:`add_cell_legend`), the ``detours`` states by a dashed black-and-white frame.
+        Arrows and values are black on light cells and white on dark ones. ``compact``: a
+        small panel of a multi-panel figure (thinner lines, smaller text). Returns the heatmap
+        image (for a colour bar), or None.
         """
         n = self.grid_size
         image = None
@@ -79,8 +79,8 @@ class GridWorldVisualizer:
                 np.asarray(values, dtype=float).reshape(n, n), mask=self.absorbing_cells
             )
             image = ax.imshow(grid, cmap="viridis", vmin=vmin, vmax=vmax)
-            if annotate:
-                self._annotate_values(ax, grid, image, compact)
+            if annotate:  # above the arrow, if there is one
+                self._annotate_values(ax, grid, image, compact, -0.18 if policy is not None else 0)
         else:
             ax.imshow(np.zeros((n, n)), cmap="Greys", vmin=0, vmax=1)
         for r, c in self.env.obstacles:
@@ -93,86 +93,95 @@ class GridWorldVisualizer:
             ("start", [self.env.start_pos]),
         ]
         for kind, cells in special:
-            colour, tag, _ = CELL_STYLE[kind]
             for r, c in cells:
-                ax.add_patch(
-                    Rectangle(
-                        (c - 0.45, r - 0.45),
-                        0.9,
-                        0.9,
-                        fill=False,
-                        edgecolor=colour,
-                        linewidth=2 if compact else 3,
-                    )
-                )
-                if compact:
-                    continue
-                ax.text(
-                    c,
-                    r - 0.31,
-                    tag,
-                    ha="center",
-                    va="center",
-                    fontsize=TAG_FONT,
-                    color=colour,
-                    fontweight="bold",
-                    bbox={"facecolor": "white", "edgecolor": "none", "pad": 0.6},
-                )
+                ax.add_patch(self._frame(r, c, 0.42, CELL_STYLE[kind][0], 2 if compact else 3))
+        for state in detours:  # along the cell's edge, outside the coloured frames
+            r, c = divmod(int(state), n)
+            ax.add_patch(self._frame(r, c, 0.475, "white", 1.8))
+            ax.add_patch(self._frame(r, c, 0.475, "black", 1.8, linestyle=(0, (2, 2))))
         if policy is not None:
-            shift = 0.0 if values is None or not annotate else (0.22 if compact else 0.25)
-            self._draw_arrows(ax, np.asarray(policy), shift, compact)
+            shift = 0.0 if values is None or not annotate else 0.2
+            self._draw_arrows(ax, np.asarray(policy), image, shift, compact)
         ax.set_xticks(range(n))
         ax.set_yticks(range(n))
-        font = SMALL_FONT if compact else 9
+        font = SMALL_FONT if compact else VALUE_FONT
         ax.tick_params(labelsize=font)
         ax.set_xlabel("column", fontsize=font)
         ax.set_ylabel("row", fontsize=font)
-        ax.set_title(title, fontsize=9 if compact else 10)
+        ax.set_title(title, fontsize=VALUE_FONT if compact else 10)
         return image
 
-    def add_cell_legend(self, fig: Figure) -> None:
-        """Legend of the coloured frames, for figures drawn with ``compact=True``."""
-        handles = [
-            Patch(facecolor="none", edgecolor=colour, linewidth=2, label=label)
-            for colour, _, label in CELL_STYLE.values()
-        ]
-        handles.append(Patch(facecolor="black", label="obstacle"))
-        fig.legend(
-            handles=handles, loc="outside lower center", ncols=4, fontsize=SMALL_FONT, frameon=False
+    @staticmethod
+    def _frame(row: int, col: int, half: float, colour: str, width: float, **style) -> Rectangle:
+        """An unfilled square of half-side ``half`` around a cell's centre."""
+        corner = (col - half, row - half)
+        return Rectangle(
+            corner, 2 * half, 2 * half, fill=False, edgecolor=colour, lw=width, **style
         )
 
-    def _annotate_values(self, ax: Axes, grid: np.ma.MaskedArray, image, compact: bool) -> None:
+    def add_cell_legend(self, fig: Figure, detours: bool = False) -> None:
+        """Legend of the coloured frames (and of the detour frame), below the figure."""
+        handles = [
+            Patch(facecolor="none", edgecolor=colour, linewidth=2, label=label)
+            for colour, label in CELL_STYLE.values()
+        ]
+        handles.append(Patch(facecolor="black", label="obstacle"))
+        handles.append(Patch(facecolor="none", edgecolor="0.6", label=FREE_CELL_LABEL))
+        if detours:
+            handles.append(
+                Patch(facecolor="none", edgecolor="black", ls=(0, (2, 2)), lw=2, label=DETOUR_LABEL)
+            )
+        fig.legend(
+            handles=handles, loc="outside lower center", ncols=3, fontsize=SMALL_FONT, frameon=False
+        )
+
+    @staticmethod
+    def _contrast_colour(image, value: float) -> str:
+        """Black on a light heatmap colour, white on a dark one."""
+        if image is None or np.isnan(value):
+            return "black"
+        return "black" if np.mean(image.cmap(image.norm(value))[:3]) > 0.5 else "white"
+
+    def _annotate_values(
+        self, ax: Axes, grid: np.ma.MaskedArray, image, compact: bool, shift: float
+    ) -> None:
         for (r, c), value in np.ndenumerate(grid.filled(np.nan)):
             if np.isnan(value):
                 continue
-            brightness = np.mean(image.cmap(image.norm(value))[:3])
             ax.text(
                 c,
-                r - (0.2 if compact else 0.04),
+                r + shift,
                 f"{value:.1f}" if compact else f"{value:.2f}",
                 ha="center",
                 va="center",
                 fontsize=SMALL_FONT if compact else VALUE_FONT,
-                color="black" if brightness > 0.5 else "white",
+                color=self._contrast_colour(image, value),
             )
 
-    def _draw_arrows(self, ax: Axes, policy: np.ndarray, shift: float, compact: bool) -> None:
-        """One arrow per decision state (not the goal, not obstacles)."""
-        length = 0.3 if shift else 0.6
+    def _draw_arrows(
+        self, ax: Axes, policy: np.ndarray, image, shift: float, compact: bool
+    ) -> None:
+        """One arrow per decision state (not the goal, not obstacles), in the cell's contrast
+        colour."""
+        length = 0.36 if shift else 0.6
+        values = image.get_array().filled(np.nan) if image is not None else None
         for state, action in enumerate(policy.reshape(-1)):
             r, c = divmod(state, self.grid_size)
             if self.absorbing_cells[r, c]:
                 continue
             dr, dc = MOVES[int(action)]
+            colour = self._contrast_colour(image, np.nan if values is None else values[r, c])
             ax.annotate(
                 "",
                 xy=(c + length / 2 * dc, r + shift + length / 2 * dr),
                 xytext=(c - length / 2 * dc, r + shift - length / 2 * dr),
                 arrowprops={
                     "arrowstyle": "-|>",
-                    "color": "#f03b20",
-                    "lw": 1.5 if compact else 2,
-                    "mutation_scale": 9 if compact else 14,
+                    "color": colour,
+                    "lw": 1.8 if compact else 2.2,
+                    "mutation_scale": 11 if compact else 14,
+                    "shrinkA": 0,
+                    "shrinkB": 0,
                 },
             )
 
@@ -184,20 +193,21 @@ class GridWorldVisualizer:
         policy: np.ndarray | None = None,
     ) -> Figure:
         """Heatmap of ``values`` (S,) with the value in each cell and optional policy arrows."""
-        fig = Figure(figsize=(4.3, 4.0), layout="constrained")
+        fig = Figure(figsize=(4.3, 4.6), layout="constrained")
         ax = fig.subplots()
         image = self.draw_grid(ax, values, policy, title)
         colour_bar = fig.colorbar(image, ax=ax, shrink=0.9)
-        colour_bar.set_label("V(s)  (expected discounted return)", fontsize=9)
-        colour_bar.ax.tick_params(labelsize=SMALL_FONT + 0.5)
-        fig.supxlabel(REWARD_NOTE, fontsize=SMALL_FONT + 0.5)
+        colour_bar.set_label("V(s)  (expected discounted return)", fontsize=VALUE_FONT)
+        colour_bar.ax.tick_params(labelsize=VALUE_FONT)
+        self.add_cell_legend(fig)
         return fig
 
     def plot_policy(self, policy: np.ndarray, title: str = "Optimal policy") -> Figure:
         """Arrows of a deterministic policy (S,) on the map."""
-        fig = Figure(figsize=(3.6, 3.6), layout="constrained")
+        fig = Figure(figsize=(3.8, 4.2), layout="constrained")
         ax = fig.subplots()
         self.draw_grid(ax, None, policy, title)
+        self.add_cell_legend(fig)
         return fig
 
     def plot_q_function(
@@ -259,12 +269,12 @@ class GridWorldVisualizer:
             ax.axhline(
                 epsilon, color="black", linewidth=0.8, label=f"stopping threshold ε = {epsilon:g}"
             )
-        ax.set_xlabel("sweep k", fontsize=9)
-        ax.set_ylabel("sup-norm change  max |x_k − x_(k−1)|", fontsize=9)
+        ax.set_xlabel("sweep k", fontsize=VALUE_FONT)
+        ax.set_ylabel("sup-norm change  max |x_k − x_(k−1)|", fontsize=VALUE_FONT)
         ax.set_title("Convergence of value iteration and Q-iteration", fontsize=10)
-        ax.tick_params(labelsize=8.5)
+        ax.tick_params(labelsize=VALUE_FONT)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=SMALL_FONT + 0.5)
         return fig
 
     def create_comparison_figure(

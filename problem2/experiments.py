@@ -228,11 +228,7 @@ def write_batch_records(
         for agent in "AB":
             with temporary_path_for(models_dir / f"{mode}_agent_{agent}.pt") as temporary:
                 shutil.copyfile(models_dir / f"{best[mode]}_agent_{agent}.pt", temporary)
-    title = (
-        f"Training progress on map seed {cfg.map_seed}"
-        + (f" (reward {cfg.reward_mode})" if cfg.reward_mode != "goal" else "")
-        + (", untrained messages" if cfg.comm_learning == "none" else "")
-    )
+    title = curves_title(cfg.hyperparameters())
     plot_training_curves(logs_dir, cfg.run_modes(), cfg.run_seeds(), title)
     write_json_atomic(models_dir / MANIFEST, manifest(cfg, finals, best, models_dir))
 
@@ -315,54 +311,33 @@ CURVE_PANELS = (
     ("eval_success_eps", "success rate", (0.0, 1.02)),
     ("eval_return_eps", "episode return", None),
 )  # validation episodes at ε = 0.05
-CURVE_REWARDS = {  # reward_mode -> (its name, the table the curves' return sums)
-    "goal": ("goal reward", "+10 when both agents stand on the target, −0.1 on every other step"),
-    "per_step": (
-        "assignment's reward",
-        "+10 when both agents stand on the target, +2 on each "
-        "step on which exactly one does, −0.1 otherwise",
-    ),
-    "arrival": (
-        "arrival reward",
-        "+10 when both agents stand on the target, +2 on a step on "
-        "which an agent first reaches it, −0.1 otherwise",
-    ),
+CURVE_REWARDS = {  # reward_mode -> the reward the curves' return sums
+    "goal": "goal reward (+10 when both agents stand on the target, −0.1 on every other step)",
+    "per_step": "assignment's reward (+10 both on target, +2 per step one is on it, else −0.1)",
+    "arrival": "arrival reward (+10 both on target, +2 when an agent first arrives, else −0.1)",
 }
 
 
-def curve_return_words(settings: dict[str, Any]) -> str:
-    """What the curves' return is, from a batch's hyperparameters: the reward table summed,
-    and the learning-only terms it leaves out."""
-    reward_name, reward_table = CURVE_REWARDS[settings["reward_mode"]]
-    learning_only = [
-        words
-        for key, words in (
-            ("target_potential", "the arrival term"),
-            ("coverage_bonus", "the coverage bonus"),
-            ("on_target_bonus", "the on-target bonus"),
-        )
-        if settings.get(key, 0) > 0
-    ]
-    words = f"Validation episodes at ε = 0.05. Return: the {reward_name} summed over an episode "
-    words += f"({reward_table})"
-    if learning_only:
-        words += f"; {' and '.join(learning_only)}, which only learning sees, not counted"
-    return textwrap.fill(words + ".", width=100)
+def curves_title(settings: dict[str, Any]) -> str:
+    """The curves' title from a batch's hyperparameters: the map, and the settings that
+    differ from the main experiment's reward and message learning."""
+    return (
+        f"Training progress on map seed {settings['map_seed']}"
+        + (f" (reward {settings['reward_mode']})" if settings["reward_mode"] != "goal" else "")
+        + (", untrained messages" if settings["comm_learning"] == "none" else "")
+    )
 
 
 def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], title: str) -> None:
     """Validation success and return (ε = 0.05) against env steps, one column per mode:
     every seed as a thin line (its last point is the weights the run ended with), the mean
-    over seeds and the interquartile band. Drawn at the report's text width (6.5 in); the
-    reward summed is read from the batch's ``agent_models/hyperparameters.json``."""
+    over seeds and the interquartile band; 6.5 in wide, as the report prints it. The reward
+    summed is named from the batch's ``agent_models/hyperparameters.json``."""
     from matplotlib.figure import Figure  # here: a worker process never needs matplotlib
     from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch
     from matplotlib.ticker import FuncFormatter
 
-    settings = json.loads(
-        (logs_dir.parent / "agent_models" / "hyperparameters.json").read_text(encoding="utf-8")
-    )
+    settings = json.loads((logs_dir.parent / "agent_models" / "hyperparameters.json").read_bytes())
     fig = Figure(figsize=(6.5, 4.9), layout="constrained")
     axes = np.asarray(fig.subplots(2, len(modes), sharex=True, sharey="row", squeeze=False))
     for column, mode in enumerate(modes):
@@ -379,21 +354,23 @@ def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], tit
             ax.plot(steps, values.mean(axis=0), color=colour, linewidth=2.0)
             if limits:
                 ax.set_ylim(*limits)
-            if column == 0:
-                ax.set_ylabel(label, fontsize=9)
+            ax.set_ylabel(label if column == 0 else "", fontsize=9)
             ax.grid(True, alpha=0.3)
             ax.tick_params(labelsize=8)
             # "100k": full numbers would run into each other
             ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x / 1000:g}k" if x else "0"))
         axes[0, column].set_title(f"{mode} ({len(seeds)} seeds)", fontsize=9)
-    for ax in axes[1]:
-        ax.set_xlabel("environment steps", fontsize=9)
+        axes[1, column].set_xlabel("environment steps", fontsize=9)
     legend = [
-        Line2D([], [], color="0.4", alpha=0.6, linewidth=0.7, label="one seed"),
-        Patch(color="0.4", alpha=0.3, label="interquartile range over seeds"),
-        Line2D([], [], color="0.4", linewidth=2.0, label="mean over seeds"),
+        Line2D([], [], color="0.4", lw=0.7, label="one seed"),
+        Line2D([], [], color="0.4", alpha=0.3, lw=7, label="interquartile range over seeds"),
+        Line2D([], [], color="0.4", lw=2.0, label="mean over seeds"),
     ]
     fig.legend(handles=legend, loc="outside lower center", ncols=3, fontsize=8, frameon=False)
-    fig.suptitle(f"{title}\n{curve_return_words(settings)}", fontsize=9)
+    reward = CURVE_REWARDS[settings["reward_mode"]]
+    unseen = ", without the arrival term (only learning sees it)"
+    words = f"Validation episodes at ε = 0.05; return: the {reward} summed over an episode"
+    words += unseen if settings["target_potential"] > 0 else ""
+    fig.suptitle(f"{title}\n{textwrap.fill(words + '.', width=100)}", fontsize=9)
     with temporary_path_for(logs_dir / "training_curves.png") as temporary:
         fig.savefig(temporary, format="png", dpi=150)

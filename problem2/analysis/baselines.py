@@ -191,6 +191,13 @@ POLICIES = {
     "sweep_explorer": lambda grid, seed: explorer_policy(seed, sweep=True),
     "beacon_explorer": lambda grid, seed: beacon_explorer_policy(seed),
 }
+POLICY_LABELS = {  # each policy's name in figures, as the report names it (report/data.typ)
+    "random": "random actions",
+    "oracle": "shortest-path oracle",
+    "explorer": "explorer",
+    "sweep_explorer": "sweeping explorer",
+    "beacon_explorer": "beacon explorer",
+}
 
 
 def evaluate_baselines(

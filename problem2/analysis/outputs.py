@@ -23,12 +23,10 @@ from typing import Any
 import numpy as np
 from batch_io import temporary_path_for
 
+from analysis.estimate_plots import plot_failure_decomposition, plot_interventions, plot_measures
 from analysis.messages import mean_message_per_cell
 from analysis.plots import (
     EpisodeTrace,
-    plot_failure_decomposition,
-    plot_interventions,
-    plot_measures,
     plot_message_heatmap,
     plot_trajectories,
     representative_traces,

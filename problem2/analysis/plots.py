@@ -1,5 +1,6 @@
 """Figures of Problem 2's evaluation: episode paths (and the choice of the episodes shown),
-the message per grid cell, the channel interventions and an animated episode. Figures use
+the message per grid cell and an animated episode (the estimates with intervals are in
+:mod:`analysis.estimate_plots`). Figures use
 ``matplotlib.figure.Figure`` (no pyplot) and are written atomically. Each static figure is
 drawn at the width (inches) at which the report places it (``WIDTHS``), with text of at
 least ``MIN_FONT`` points: legible when printed."""
@@ -18,6 +19,7 @@ from grid_maps import OBSTACLE, TARGET
 from matplotlib.animation import FuncAnimation, PillowWriter
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator, StrMethodFormatter
 from rollout import EpisodeResults
 
 from analysis.failures import FAILURE_KINDS, classify_failures
@@ -185,22 +187,19 @@ def plot_trajectories(
     """One row per mode (label, [successful episode, failed or longest successful episode]);
     None draws an empty panel saying that no such episode occurred. With ``messages`` (one
     mean message per cell (2, H, W) per row), two more columns show what each agent says
-    where: the strategy's route and its message in one figure."""
+    where, on the colour scale of that row's range (its colour bar beside it): the
+    strategy's route and its message in one figure."""
     columns = 2 if messages is None else 4
     width = WIDTHS["trajectories"] if messages is None else WIDTHS["strategies"]
-    height = (2.45 if messages is None else 1.75) * len(rows) + 0.9
+    height = (2.45 if messages is None else 2.1) * len(rows) + 1.0
     with legible():
         fig = Figure(figsize=(width, height), layout="constrained")
         axes = np.atleast_2d(fig.subplots(len(rows), columns))
         _draw_trajectories(fig, axes[:, :2], rows, grid, compact=messages is not None)
         if messages is not None:
-            image = None
+            fig.get_layout_engine().set(h_pad=0.08, hspace=0.06)  # titles clear of the row above
             for means, row_axes in zip(messages, axes[:, 2:], strict=True):
-                for agent, ax in enumerate(row_axes):
-                    image = draw_message_map(ax, grid, means[agent])
-                    ax.set_title(f"message sent by {'AB'[agent]}", fontsize=MIN_FONT)
-            label = "mean message sent (greedy episodes)"
-            fig.colorbar(image, ax=axes[:, 2:], shrink=0.6, label=label)
+                draw_message_row(fig, row_axes, grid, means, [f"message sent by {a}" for a in "AB"])
             for ax in axes[:, 1:].flat:
                 ax.set_ylabel("")
                 ax.set_yticklabels([])
@@ -208,6 +207,33 @@ def plot_trajectories(
                 ax.set_xlabel("")
                 ax.set_xticklabels([])
         return save_figure(fig, path, dpi=200 if messages is not None else 120)
+
+
+def draw_message_row(
+    fig: Figure, row_axes: np.ndarray, grid: np.ndarray, means: np.ndarray, titles: list[str]
+) -> None:
+    """Both agents' message maps (``means`` (2, H, W)) on ``row_axes``, coloured over the
+    row's range (:func:`message_range`), with the row's colour bar and its values."""
+    low, high = message_range(means)
+    for agent, ax in enumerate(row_axes):
+        image = draw_message_map(ax, grid, means[agent], low, high)
+        ax.set_title(titles[agent], fontsize=MIN_FONT)
+    bar = fig.colorbar(image, ax=row_axes, shrink=0.85, aspect=12)
+    bar.ax.yaxis.set_major_locator(MaxNLocator(4))
+    digits = max(2, int(np.ceil(-np.log10(high - low))) + 1)  # ticks that differ when printed
+    bar.ax.yaxis.set_major_formatter(StrMethodFormatter(f"{{x:.{digits}f}}"))
+    bar.set_label("mean message", fontsize=MIN_FONT)
+
+
+def message_range(means: np.ndarray) -> tuple[float, float]:
+    """The colour scale of a row's message maps: the range of the mean messages (2, H, W)
+    it shows, at least 0.001 wide (a constant message gets a scale around its value)."""
+    finite = means[np.isfinite(means)]
+    if finite.size == 0:
+        return 0.0, 1.0
+    low, high = float(finite.min()), float(finite.max())
+    pad = max(0.0, 0.001 - (high - low)) / 2
+    return low - pad, high + pad
 
 
 def _draw_trajectories(
@@ -232,8 +258,9 @@ def _draw_trajectories(
             steps = f"{trace.length} step{'s' if trace.length != 1 else ''}"
             outcome = f"success in {steps}" if trace.success else "failure"
             details = [w for w in (trace.description, waits) if w]  # the kind, who waits
-            if compact:  # one line each
-                ax.set_title("\n".join([outcome, *details]), fontsize=MIN_FONT)
+            if compact:  # one short line each: the titles of neighbouring panels stay apart
+                short = f"success, {steps}" if trace.success else "failure"
+                ax.set_title("\n".join([short, *details]), fontsize=MIN_FONT)
             else:
                 detail = f" ({'; '.join(details)})" if details else ""
                 ax.set_title(f"{head}{outcome}{detail}", fontsize=MIN_FONT)
@@ -244,17 +271,31 @@ def _draw_trajectories(
         for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
             handles.setdefault(name, handle)
     fig.legend(handles.values(), handles.keys(), loc="outside lower center", ncol=3)
+    firsts = [traces[0] for _, traces in rows if traces[0] is not None]
+    same_start = len(firsts) > 1 and all(
+        np.array_equal(t.positions[0], firsts[0].positions[0]) for t in firsts
+    )  # the test episodes of every mode start from the same cells
     if compact:
-        fig.suptitle("Representative episodes and the messages sent from each cell (best seed)")
+        fig.suptitle(
+            "Representative episodes and the messages sent from each cell (best seed)"
+            + (
+                "\nfirst column: the same test episode (start cells) in every row"
+                if same_start
+                else ""
+            )
+        )
     else:
         fig.suptitle("Representative episodes\n(A blue, B red; star: target; grey: obstacles)")
 
 
-def draw_message_map(ax: Axes, grid: np.ndarray, means: np.ndarray):
-    """The mean message an agent sent from each cell (H, W): viridis from 0 to 1, cells it
-    never sent from light grey, obstacles dark grey, the target a white star."""
+def draw_message_map(
+    ax: Axes, grid: np.ndarray, means: np.ndarray, low: float = 0.0, high: float = 1.0
+):
+    """The mean message an agent sent from each cell (H, W): viridis from ``low`` to
+    ``high``, cells it never sent from light grey, obstacles dark grey, the target a white
+    star."""
     values = np.ma.masked_invalid(np.where(grid == OBSTACLE, np.nan, means))
-    image = ax.imshow(values, cmap=_viridis_with_grey(), vmin=0, vmax=1)
+    image = ax.imshow(values, cmap=_viridis_with_grey(), vmin=low, vmax=high)
     ax.imshow(np.ma.masked_where(grid != OBSTACLE, grid), cmap="gray", vmin=0, vmax=2)
     target_row, target_col = np.argwhere(grid == TARGET)[0]
     ax.plot(target_col, target_row, marker="*", markersize=11, mfc="none", mec="white")
@@ -268,118 +309,19 @@ def draw_message_map(ax: Axes, grid: np.ndarray, means: np.ndarray):
 def plot_message_heatmap(
     panels: list[tuple[str, np.ndarray]], grid: np.ndarray, path: str | Path
 ) -> Path:
-    """One row per (label, mean message (2, H, W)); columns agent A and agent B. Cells an
-    agent never sent from are light grey, obstacles dark grey, the target a white star."""
+    """One row per (label, mean message (2, H, W)); columns agent A and agent B, each row
+    on its own colour scale (its bar beside it). Cells an agent never sent from are light
+    grey, obstacles dark grey, the target a white star."""
     with legible():
         fig = Figure(
             figsize=(WIDTHS["message_heatmap"], 3.0 * len(panels) + 0.9), layout="constrained"
         )
         axes = np.atleast_2d(fig.subplots(len(panels), 2))
-        image = None
         for (label, means), row_axes in zip(panels, axes, strict=True):
-            for agent, ax in enumerate(row_axes):
-                image = draw_message_map(ax, grid, means[agent])
-                ax.set_title(f"{label}: sent by {'AB'[agent]}")
-        if image is not None:
-            fig.colorbar(image, ax=axes, shrink=0.8, label="mean message sent (0 to 1)")
+            titles = [f"{label}: sent by {agent}" for agent in "AB"]
+            draw_message_row(fig, row_axes, grid, means, titles)
         fig.suptitle("Mean message sent from each cell (greedy test episodes, best seed)")
         fig.supxlabel("white star: target; dark grey: obstacle; light grey: never visited")
-        return save_figure(fig, path, dpi=200)
-
-
-def plot_interventions(modes: dict[str, dict], path: str | Path) -> Path:
-    """Δsuccess (intervention − real) with its 95 % CI over seeds, one panel per mode and
-    channel (``modes``: mode -> channel -> the ``interventions`` entry), greedy and
-    ε-greedy side by side."""
-    panels = [(mode, channel, entry) for mode, channels in modes.items()
-              for channel, entry in channels.items()]  # fmt: skip
-    with legible():
-        fig = Figure(
-            figsize=(WIDTHS["interventions"], 1.3 * len(panels) + 0.9), layout="constrained"
-        )
-        axes = np.atleast_1d(fig.subplots(len(panels), 1, squeeze=False, sharex=True)[:, 0])
-        for ax, (mode, channel, entry) in zip(axes, panels, strict=True):
-            kinds = list(entry["greedy"]["delta_success"])
-            rows = np.arange(len(kinds))
-            for offset, (condition, colour) in zip(
-                (-0.2, 0.2), (("greedy", "#4c72b0"), ("eps", "#dd8452")), strict=True
-            ):
-                stats = [entry[condition]["delta_success"][k] for k in kinds]
-                means = 100 * np.array([s["mean"] for s in stats])  # percentage points
-                lows = 100 * np.array([s["ci95"][0] for s in stats])
-                highs = 100 * np.array([s["ci95"][1] for s in stats])
-                label = "greedy" if condition == "greedy" else "ε = 0.05"
-                ax.barh(rows + offset, means, height=0.38, color=colour, label=label,
-                        xerr=[means - lows, highs - means], capsize=2)  # fmt: skip
-            ax.axvline(0, color="black", linewidth=0.8)
-            ax.set_yticks(rows, [k.replace("_", " ") for k in kinds])
-            ax.invert_yaxis()
-            verdict = entry["eps"]["verdict"]
-            ax.set_title(f"{mode}: {channel} (verdict at ε = 0.05: {verdict})")
-        axes[-1].set_xlabel("Δ success vs the real input (points; 95 % CI over seeds)")
-        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=2)
-        fig.suptitle("What happens when an input channel is replaced")
-        return save_figure(fig, path, dpi=200)
-
-
-def plot_measures(modes: dict[str, dict], bins: str, path: str | Path) -> Path:
-    """Each communication measure (``modes``: mode -> {"K2": {measure: {sender: seed
-    statistics}}}) per mode, senders A and B, mean with its 95 % CI over seeds."""
-    measures = list(next(iter(modes.values()))[bins])
-    with legible():
-        fig = Figure(figsize=(WIDTHS["measures"], 0.95 * len(measures) + 1.2), layout="constrained")
-        axes = fig.subplots(len(measures), 1, squeeze=False)[:, 0]
-        rows = np.arange(len(modes))
-        for ax, measure in zip(axes, measures, strict=True):
-            for offset, sender in zip((-0.2, 0.2), "AB", strict=True):
-                stats = [modes[mode][bins][measure][sender] for mode in modes]
-                means = np.array([s["mean"] for s in stats])
-                errors = np.array(
-                    [
-                        [m - s["ci95"][0], s["ci95"][1] - m]
-                        for m, s in zip(means, stats, strict=True)
-                    ]
-                ).T
-                colour = AGENT_COLOURS["AB".index(sender)]
-                ax.barh(rows + offset, means, height=0.38, xerr=np.maximum(errors, 0),
-                        capsize=2, color=colour, label=f"sender {sender}")  # fmt: skip
-            ax.set_yticks(rows, list(modes))
-            ax.invert_yaxis()
-            ax.set_title(measure.replace("_", " "))
-        axes[-1].set_xlabel(f"bits (message in {bins[1:]} bins; 95 % CI over seeds)")
-        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=2)
-        fig.suptitle("Communication measures (Lowe et al. 2019),\ngreedy test episodes")
-        return save_figure(fig, path, dpi=200)
-
-
-def plot_failure_decomposition(modes: dict[str, dict], path: str | Path) -> Path:
-    """Share of test episodes that fail by navigation (an agent never reached the target)
-    and by timing (both did, never together), per mode and condition (``modes``: mode ->
-    the performance entry)."""
-    labels, navigation, timing = [], [], []
-    for mode, entry in modes.items():
-        for condition in ("greedy", "eps"):
-            failed = 1 - np.array(entry[condition]["success_rate"]["per_seed"])
-            shares = entry[condition]["failure_decomposition"]
-            labels.append(f"{mode}, {'greedy' if condition == 'greedy' else 'ε-greedy'}")
-            for kind, bars in (("navigation", navigation), ("timing", timing)):
-                per_seed = [0.0 if v is None else v for v in shares[kind]["per_seed"]]
-                bars.append(float(np.mean(failed * np.array(per_seed))))  # share of all episodes
-    with legible():
-        fig = Figure(
-            figsize=(WIDTHS["failure_decomposition"], 0.25 * len(labels) + 1.6),
-            layout="constrained",
-        )
-        ax = fig.subplots()
-        rows = np.arange(len(labels))
-        ax.barh(rows, navigation, color="#8172b3", label="navigation: an agent never reached it")
-        ax.barh(rows, timing, left=navigation, color="#ccb974",
-                label="timing: both reached it, never together")  # fmt: skip
-        ax.set_yticks(rows, labels)
-        ax.invert_yaxis()
-        ax.set_xlabel("share of test episodes that fail\n(mean over seeds)")
-        fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=1)
-        fig.suptitle("Why episodes fail")
         return save_figure(fig, path, dpi=200)
 
 

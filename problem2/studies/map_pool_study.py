@@ -2,6 +2,7 @@
 
     python map_pool_study.py                    # 3 modes x 5 seeds, writes the study folder
     python map_pool_study.py --total_steps 300000 --num_seeds 2 --output_dir /tmp/pool
+    python map_pool_study.py --plot_only         # redraw map_pool.png from map_pool.json
 
 Every run trains through :meth:`trainer.MultiAgentTrainer.train` on ``map_pool`` training
 maps (a new one drawn at every episode start, :mod:`map_pool`), keeps the checkpoint that
@@ -31,6 +32,7 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import json
 import sys
 import time
 from pathlib import Path
@@ -38,6 +40,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from analysis.baselines import POLICY_LABELS
 from analysis.held_out import baselines_on_held_out, held_out_success
 from analysis.stats import BOOTSTRAP_RESAMPLES, seed_paired_differences, seed_statistics
 from batch_io import (
@@ -47,6 +50,7 @@ from batch_io import (
     write_json_atomic,
 )
 from grid_maps import HELD_OUT_MAP_SEEDS, MAX_POOL_SIZE, TRAINING_FIRST_SEED, VALIDATION_FIRST_SEED
+from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED
@@ -68,6 +72,8 @@ RECIPE: dict[str, Any] = dict(
 # the main experiment's defaults changed after the recipe was chosen.
 STUDY_POOL_SIZES = int_in(1, MAX_POOL_SIZE)  # a pool of maps: train.py's 0 (one map) is not one
 CONDITIONS = {"greedy": 0.0, "eps": EVAL_EPSILON}
+FIGURE_WIDTH = 4.3  # inches: report/map_pool.typ and memory.typ print the figures this wide
+FONT = 8  # points, the smallest text of the figures
 HEURISTICS = ("explorer", "sweep_explorer", "beacon_explorer", "random", "oracle")
 MODE_DIFFERENCES = (("comm", "independent"), ("full", "comm"), ("full", "independent"))
 DEPARTURES = {
@@ -180,31 +186,73 @@ def write_csv(path: Path, results: dict) -> None:
             writer.writerow([name, "", stats["mean"], ""])
 
 
-def plot(path: Path, results: dict) -> None:
-    """Held-out success per mode (bars: mean over seeds, whiskers: 95 % CI, dots: seeds)
-    beside the explorers (dashed lines)."""
-    fig = Figure(figsize=(6.4, 3.4), layout="constrained")
-    ax = fig.subplots()
-    modes = results["held_out"]["modes"]
-    for offset, (label, colour) in zip((-0.18, 0.18), (("greedy", "#4c72b0"), ("eps", "#dd8452")),
-                                       strict=True):  # fmt: skip
-        for i, stats in enumerate(modes[m][label] for m in modes):
+def draw_success_bars(ax: Axes, modes: list[str], arms: list[tuple[str, str, dict]]) -> None:
+    """Held-out success per mode for each arm (label, colour, mode -> condition statistics
+    with ``mean``, ``ci95``, ``per_seed``): bars at the mean, whiskers over the 95 % CI and a
+    dot per seed. A mode an arm has no run of gets no slot; its other bars close up."""
+    for i, mode in enumerate(modes):
+        present = [arm for arm in arms if mode in arm[2]]
+        for k, (label, colour, stats_of) in enumerate(present):
+            x, stats = i + 0.36 * (k - (len(present) - 1) / 2), stats_of[mode]
             low, high = stats["ci95"]
-            ax.bar(i + offset, stats["mean"], 0.34, color=colour,
-                   label=f"{label} (ε = {CONDITIONS[label]:g})" if i == 0 else None)  # fmt: skip
-            ax.errorbar(i + offset, stats["mean"], [[stats["mean"] - low], [high - stats["mean"]]],
+            ax.bar(x, stats["mean"], 0.34, color=colour, label=label)
+            ax.errorbar(x, stats["mean"], [[stats["mean"] - low], [high - stats["mean"]]],
                         color="black", capsize=3)  # fmt: skip
-            ax.plot([i + offset] * len(stats["per_seed"]), stats["per_seed"], "k.", ms=3)
-    heuristics = results["held_out"]["heuristics"]
-    for name, style in (("explorer", ":"), ("sweep_explorer", "--"), ("beacon_explorer", "-.")):
-        ax.axhline(heuristics[name]["mean"], color="grey", ls=style, label=name.replace("_", " "))
-    ax.set_xticks(range(len(modes)), list(modes))
-    ax.set_ylabel("success on 40 held-out maps")
+            ax.plot([x] * len(stats["per_seed"]), stats["per_seed"], "k.", ms=3)
+    ax.set_xticks(range(len(modes)), modes)
     ax.set_ylim(0, 1)
     ax.grid(True, axis="y", alpha=0.3)
-    ax.legend(fontsize=7, ncols=2, loc="upper left")
+
+
+def draw_reference_lines(ax: Axes, heuristics: dict) -> None:
+    """The explorers' held-out success as grey lines, each named with its value on the
+    right-hand axis."""
+    names = ("explorer", "sweep_explorer", "beacon_explorer")
+    for name, style in zip(names, (":", "--", "-."), strict=True):
+        ax.axhline(heuristics[name]["mean"], color="grey", ls=style, lw=1.2)
+    right = ax.twinx()
+    right.set_ylim(ax.get_ylim())
+    means = [heuristics[name]["mean"] for name in names]
+    right.set_yticks(
+        means, [f"{POLICY_LABELS[n]}\n{m:.2f}" for n, m in zip(names, means, strict=True)]
+    )
+    right.tick_params(length=0, labelsize=FONT, labelcolor="0.35")
+
+
+def save_bars(fig: Figure, ax: Axes, ylabel: str, path: Path) -> None:
+    """The figure's one legend (an entry per arm) below it, the axis label, the file."""
+    ax.set_ylabel(ylabel, fontsize=FONT + 1)
+    ax.tick_params(labelsize=FONT)
+    handles = dict(zip(*reversed(ax.get_legend_handles_labels()), strict=True))
+    fig.legend(
+        handles.values(),
+        handles.keys(),
+        loc="outside lower center",
+        ncols=len(handles),
+        fontsize=FONT + 1,
+        frameon=False,
+    )
     with temporary_path_for(path) as temporary:
-        fig.savefig(temporary, format="png", dpi=150)
+        fig.savefig(temporary, format="png", dpi=200)
+
+
+def plot(path: Path, results: dict) -> None:
+    """Held-out success per mode (bars: mean over seeds, whiskers: 95 % CI, dots: seeds)
+    beside the explorers (lines), at the width the report prints it."""
+    fig = Figure(figsize=(FIGURE_WIDTH, 3.2), layout="constrained")
+    ax = fig.subplots()
+    modes = results["held_out"]["modes"]
+    arms = [
+        (
+            f"{'greedy' if c == 'greedy' else 'ε-greedy'} (ε = {CONDITIONS[c]:g})",
+            colour,
+            {m: modes[m][c] for m in modes},
+        )
+        for c, colour in (("greedy", "#4c72b0"), ("eps", "#dd8452"))
+    ]
+    draw_success_bars(ax, list(modes), arms)
+    draw_reference_lines(ax, results["held_out"]["heuristics"])
+    save_bars(fig, ax, f"success on {len(HELD_OUT_MAP_SEEDS)} held-out maps", path)
 
 
 def run_study(cfg: TrainConfig, episodes: int, output_dir: Path) -> dict:
@@ -253,7 +301,15 @@ def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]
     add("--workers", type=int, default=available_cores(), help="parallel training processes")
     add("--output_dir", "--output-dir", type=Path, default=STUDY_DIR,
         help="folder written (relative: to the current folder)")  # fmt: skip
+    add(
+        "--plot_only",
+        "--plot-only",
+        action="store_true",
+        help="only redraw map_pool.png from the map_pool.json in --output_dir (no training)",
+    )
     args = parser.parse_args(argv)
+    if args.plot_only and not (args.output_dir / "map_pool.json").is_file():
+        parser.error(f"--plot_only: {args.output_dir / 'map_pool.json'} does not exist")
     settings = RECIPE | {
         "total_steps": args.total_steps, "seeds": list(range(args.num_seeds)),
         "mode": args.mode, "map_pool": args.map_pool, "workers": args.workers,
@@ -275,6 +331,11 @@ def main(argv: list[str] | None = None) -> dict:
         if hasattr(stream, "reconfigure"):
             stream.reconfigure(errors="replace")
     cfg, args = parse_args(argv)
+    if args.plot_only:
+        results = json.loads((args.output_dir / "map_pool.json").read_text(encoding="utf-8"))
+        plot(args.output_dir / "map_pool.png", results)
+        print(f"wrote {args.output_dir / 'map_pool.png'}")
+        return results
     start = time.perf_counter()
     results = run_study(cfg, args.episodes_per_map, args.output_dir)
     print(format_table(results))

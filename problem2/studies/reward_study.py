@@ -2,6 +2,7 @@
 
     python reward_study.py                  # exact DP on map 641 + both trained batches
     python reward_study.py --dp_only        # the exact DP table alone (seconds)
+    python reward_study.py --plot_only      # redraw reward_study.png from reward_study.json
     python reward_study.py --per_step_models DIR --arrival_models DIR --output_dir DIR
 
 1. Exact answer (``joint_dp.py``): the optimal joint policy with full information under the
@@ -21,6 +22,7 @@ Writes ``reward_study.json`` and ``reward_study.png`` into ``--output_dir``.
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import numpy as np
@@ -279,7 +281,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     add("--max_steps", type=int, default=joint_dp.HORIZON,
         help="episode length of the DP and the evaluation (default %(default)s)")  # fmt: skip
     add("--dp_only", action="store_true", help="compute the exact DP only (no trained agents)")
+    add(
+        "--plot_only",
+        action="store_true",
+        help="only redraw reward_study.png from the reward_study.json in --output_dir",
+    )
     args = parser.parse_args(argv)
+    if args.plot_only:
+        if not (args.output_dir / "reward_study.json").is_file():
+            parser.error(f"--plot_only: {args.output_dir / 'reward_study.json'} does not exist")
+        return args
     if args.num_episodes < 1:
         parser.error(f"--num_episodes must be a positive integer, got {args.num_episodes}")
     if not 0 <= args.epsilon <= 1:
@@ -297,6 +308,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> dict:
     args = parse_args(argv)
+    if args.plot_only:
+        study = json.loads((args.output_dir / "reward_study.json").read_text(encoding="utf-8"))
+        plot_study(study, args.output_dir / "reward_study.png")
+        print(f"wrote {args.output_dir / 'reward_study.png'}")
+        return study
     torch.set_num_threads(1)
     grid = generate_map((10, 10), args.map_seed)
     folders = (

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from batch_io import temporary_path_for
+
 CONDITIONS = ("greedy", "epsilon")  # the evaluation conditions, in the order run
 
 
@@ -53,66 +55,73 @@ def format_table(study: dict) -> str:
     return "\n".join(lines)
 
 
-def plot_study(study: dict, path: Path) -> None:
-    """Success vs assignment-reward return, one point per trained seed and reward (colour:
-    trained reward, marker: mode), one panel per condition; exact-DP optima as stars."""
-    import matplotlib
+REWARD_LABELS = {"per_step": "assignment's reward", "arrival": "arrival reward"}
+MODE_MARKERS = {"independent": "o", "comm": "s", "distance": "D", "full": "^"}
+DP_OPTIMA = (  # (problem, reward, label, marker)
+    ("finite_horizon", "per_step", "DP: assignment's, with clock", "*"),
+    ("stationary", "per_step", "DP: assignment's, no clock", "P"),
+    ("finite_horizon", "arrival", "DP: arrival reward", "X"),
+)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+
+def plot_study(study: dict, path: Path) -> None:
+    """Success vs assignment-reward return, one point per trained seed (colour and shape:
+    mode; filled: trained on the assignment's reward, hollow: on the arrival reward), one
+    panel per condition; the exact-DP optima (DP) in black. Drawn at the width the report prints
+    it (4.9 in)."""
+    from experiments import MODE_COLOURS
+    from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
 
-    colours = {"per_step": "tab:red", "arrival": "tab:blue"}
-    markers = {"independent": "o", "comm": "s", "full": "^"}
-    dp = study["exact_dp"]
-    optima = [
-        ("finite_horizon", "per_step", "DP, assignment, with clock", "*"),
-        ("stationary", "per_step", "DP, assignment, no clock", "P"),
-        ("finite_horizon", "arrival", "DP, arrival", "X"),
-    ]
+    fig = Figure(figsize=(4.9, 4.3), layout="constrained")
+    axes = fig.subplots(1, 2, sharey=True)
+    modes = sorted(
+        {m for modes in study.get("learned", {}).values() for m in modes},
+        key=list(MODE_MARKERS).index,
+    )
+    for axis, condition in zip(axes, CONDITIONS, strict=True):
+        for reward, entries in study.get("learned", {}).items():
+            for mode, entry in entries.items():
+                colour, filled = MODE_COLOURS[mode], reward == "per_step"
+                axis.scatter(
+                    entry[condition]["return_assignment"]["per_seed"],
+                    entry[condition]["success_rate"]["per_seed"],
+                    marker=MODE_MARKERS[mode],
+                    s=26,
+                    linewidths=1.1,
+                    edgecolors=colour,
+                    facecolors=colour if filled else "none",
+                    alpha=0.85,
+                )
+        for problem, reward, _, marker in DP_OPTIMA:
+            row = study["exact_dp"][problem][reward]
+            axis.scatter(
+                row["return_assignment"],
+                row["success_rate"],
+                marker=marker,
+                s=90,
+                facecolors="none",
+                edgecolors="black",
+            )
+        epsilon = study["protocol"]["conditions"][condition]
+        axis.set_title("greedy" if condition == "greedy" else f"ε = {epsilon:g}", fontsize=9)
+        axis.set_xlabel("mean return under\nthe assignment's reward", fontsize=9)
+        axis.tick_params(labelsize=8)
+        axis.grid(alpha=0.3)
+    axes[0].set_ylabel("success rate (one point per seed)", fontsize=9)
+    axes[0].set_ylim(-0.03, 1.05)
     legend = [
-        Line2D(
-            [], [], ls="", marker="o", color=colours["per_step"], label="trained on assignment rew."
-        ),
-        Line2D(
-            [], [], ls="", marker="o", color=colours["arrival"], label="trained on arrival rew."
-        ),
+        Line2D([], [], ls="", marker=MODE_MARKERS[m], color=MODE_COLOURS[m], label=m) for m in modes
     ]
     legend += [
-        Line2D([], [], ls="", marker=marker, color="grey", label=mode)
-        for mode, marker in markers.items()
+        Line2D([], [], ls="", marker="o", color="0.3", mfc=fill, label=f"trained on {words}")
+        for fill, words in (("0.3", REWARD_LABELS["per_step"]), ("none", REWARD_LABELS["arrival"]))
     ]
     legend += [
         Line2D([], [], ls="", marker=marker, ms=9, mfc="none", mec="black", label=label)
-        for _, _, label, marker in optima
+        for _, _, label, marker in DP_OPTIMA
     ]
-    with plt.rc_context({"font.size": 9, "legend.fontsize": 8}):
-        figure, axes = plt.subplots(1, 2, figsize=(4.9, 3.4), sharey=True, layout="constrained")
-        for axis, condition in zip(axes, CONDITIONS, strict=True):
-            for reward, modes in study.get("learned", {}).items():
-                for mode, entry in modes.items():
-                    row = entry[condition]
-                    axis.scatter(
-                        row["return_assignment"]["per_seed"],
-                        row["success_rate"]["per_seed"],
-                        c=colours[reward],
-                        marker=markers[mode],
-                        s=22,
-                        alpha=0.75,
-                    )
-            for problem, reward, _, marker in optima:
-                row = dp[problem][reward]
-                axis.scatter(
-                    row["return_assignment"], row["success_rate"], marker=marker, s=90,
-                    facecolors="none", edgecolors="black",
-                )  # fmt: skip
-            epsilon = study["protocol"]["conditions"][condition]
-            axis.set_title("greedy" if condition == "greedy" else f"epsilon = {epsilon}")
-            axis.set_xlabel("mean return under\nthe assignment's reward")
-            axis.grid(alpha=0.3)
-        axes[0].set_ylabel("success rate (one point per seed)")
-        axes[0].set_ylim(-0.03, 1.05)
-        figure.legend(handles=legend, loc="outside lower center", ncol=2, frameon=False)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        figure.savefig(path, dpi=150, metadata={"Software": None})
-        plt.close(figure)
+    fig.legend(handles=legend, loc="outside lower center", ncol=2, fontsize=8, frameon=False)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with temporary_path_for(path) as temporary:
+        fig.savefig(temporary, format="png", dpi=150, metadata={"Software": None})

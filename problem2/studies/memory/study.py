@@ -17,6 +17,7 @@ The memoryless agents are the map-pool study's (``map_pool/map_pool.json``, the 
 and seed. Outputs in ``results/studies/memory`` (written into a staging folder and moved
 into place whole): ``memory.json``, ``memory.png``, ``agent_models/``, ``training_logs/``,
 ``timing.json`` (wall times: the only file that differs between identical reruns).
+``--plot_only`` redraws ``memory.png`` from ``memory.json`` without training.
 """
 
 from __future__ import annotations
@@ -37,7 +38,6 @@ from analysis.stats import seed_paired_differences, seed_statistics
 from batch_io import (
     ProgressLine,
     run_jobs,
-    temporary_path_for,
     write_json_atomic,
 )
 from grid_maps import HELD_OUT_MAP_SEEDS
@@ -189,42 +189,20 @@ def summarise(
 def plot(path: Path, results: dict, no_memory: dict | None) -> None:
     """Held-out success at ε = 0.05 per mode, without memory (the map-pool study) and with
     (bars: mean over seeds, whiskers: 95 % CI, dots: seeds), beside the explorers."""
-    fig = Figure(figsize=(6.4, 3.4), layout="constrained")
+    fig = Figure(figsize=(map_pool_study.FIGURE_WIDTH, 3.2), layout="constrained")
     ax = fig.subplots()
     modes = list(results["held_out"]["modes"])
     earlier = no_memory["held_out"]["modes"] if no_memory else {}
-    arms = (
-        ("no memory", -0.18, "#9aa9c2", earlier),
-        ("GRU memory", 0.18, "#4c72b0", results["held_out"]["modes"]),
-    )
-    for label, offset, colour, source in arms:
-        for i, mode in enumerate(modes):
-            if mode not in source:
-                continue
-            stats = source[mode]["eps"]
-            low, high = stats["ci95"]
-            ax.bar(i + offset, stats["mean"], 0.34, color=colour, label=label if i == 0 else None)
-            ax.errorbar(
-                i + offset,
-                stats["mean"],
-                [[stats["mean"] - low], [high - stats["mean"]]],
-                color="black",
-                capsize=3,
-            )
-            ax.plot([i + offset] * len(stats["per_seed"]), stats["per_seed"], "k.", ms=3)
+    arms = [
+        ("no memory (map-pool study)", "#9aa9c2", {m: earlier[m]["eps"] for m in earlier}),
+        ("GRU memory", "#4c72b0", {m: s["eps"] for m, s in results["held_out"]["modes"].items()}),
+    ]
+    map_pool_study.draw_success_bars(ax, modes, arms)
+    ax.set_xticks(range(len(modes)), [m if m in earlier else f"{m}\n(memory only)" for m in modes])
     if no_memory:
-        heuristics = no_memory["held_out"]["heuristics"]
-        for name, style in (("explorer", ":"), ("sweep_explorer", "--"), ("beacon_explorer", "-.")):
-            ax.axhline(
-                heuristics[name]["mean"], color="grey", ls=style, label=name.replace("_", " ")
-            )
-    ax.set_xticks(range(len(modes)), modes)
-    ax.set_ylabel("success on 40 held-out maps (ε = 0.05)")
-    ax.set_ylim(0, 1)
-    ax.grid(True, axis="y", alpha=0.3)
-    ax.legend(fontsize=7, ncols=2, loc="upper left")
-    with temporary_path_for(path) as temporary:
-        fig.savefig(temporary, format="png", dpi=150)
+        map_pool_study.draw_reference_lines(ax, no_memory["held_out"]["heuristics"])
+    label = f"success on {len(HELD_OUT_MAP_SEEDS)} held-out maps (ε = {CONDITIONS['eps']:g})"
+    map_pool_study.save_bars(fig, ax, label, path)
 
 
 def read_no_memory() -> dict | None:
@@ -298,7 +276,15 @@ def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]
         default=STUDY_DIR,
         help="folder written (relative: to the current folder)",
     )
+    add(
+        "--plot_only",
+        "--plot-only",
+        action="store_true",
+        help="only redraw memory.png from the memory.json in --output_dir (no training)",
+    )
     args = parser.parse_args(argv)
+    if args.plot_only and not (args.output_dir / "memory.json").is_file():
+        parser.error(f"--plot_only: {args.output_dir / 'memory.json'} does not exist")
     modes = list(MEMORY_MODES) if args.mode == "all" else args.mode.split(",")
     unknown = [m for m in modes if m not in MEMORY_MODES]
     if unknown:
@@ -322,6 +308,11 @@ def main(argv: list[str] | None = None) -> dict:
         if hasattr(stream, "reconfigure"):
             stream.reconfigure(errors="replace")
     cfg, args = parse_args(argv)
+    if args.plot_only:
+        results = json.loads((args.output_dir / "memory.json").read_text(encoding="utf-8"))
+        plot(args.output_dir / "memory.png", results, read_no_memory())
+        print(f"wrote {args.output_dir / 'memory.png'}")
+        return results
     start = time.perf_counter()
     results = run_study(cfg, args.modes, args.seeds, args.episodes_per_map, args.output_dir)
     print(format_table(results))
