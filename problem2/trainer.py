@@ -40,7 +40,7 @@ from rollout import (
     select_best,
 )
 from train_config import TRAINABLE_MODES
-from transition_batch import TransitionBatch, sample_batch
+from transition_batch import BatchSampler, TransitionBatch
 from vector_env import VectorMultiAgentEnv
 
 LAST_WEIGHTS = "last_weights"  # subfolder of agent_models/: each run's final weights (keep_best)
@@ -139,6 +139,7 @@ class MultiAgentTrainer(CourseSkeletonAPI):
             )
         else:
             self.replay_buffer = ReplayBuffer(cfg.buffer_size, seed=self.seed)
+        self.sampler = BatchSampler(self.obs_dim, cfg.gamma)
         # DIAL trains the message where the receiver sees it (comm, full).
         self.dial = cfg.comm_learning == "dial" and bool(self.mask[self.obs_dim - 2])
         self.epsilon = cfg.epsilon_start
@@ -344,7 +345,7 @@ class MultiAgentTrainer(CourseSkeletonAPI):
 
     def sample(self, batch_size: int) -> tuple[TransitionBatch, np.ndarray]:
         """A batch from the replay buffer and the replay slots (B,) it came from."""
-        return sample_batch(self.replay_buffer, batch_size, self.obs_dim, self.cfg.gamma)
+        return self.sampler.sample(self.replay_buffer, batch_size)
 
     def td_loss(self, batch: TransitionBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The Huber TD loss, summed over both agents (the assignment's L = L_A + L_B).

@@ -30,7 +30,7 @@ class TransitionBatch:
     def of_rows(cls, rows: torch.Tensor, layout: dict[str, slice], obs_dim: int) -> TransitionBatch:
         """Views of ``rows`` (B, row width) in the replay buffer's ``layout``. Fields the
         rows lack (transitions pushed by hand) are zeros, ``last_obs`` then ``obs``.
-        ``actions`` is int64, so a copy that :func:`sample_batch` fills."""
+        ``actions`` is int64, so a copy that :meth:`BatchSampler.sample` fills."""
         b = rows.shape[0]
 
         def pair(name_a: str) -> torch.Tensor:  # columns of X_A then X_B -> (2, B, D)
@@ -57,19 +57,28 @@ class TransitionBatch:
         )
 
 
-def sample_batch(
-    buffer: ReplayBuffer, batch_size: int, obs_dim: int, gamma: float
-) -> tuple[TransitionBatch, np.ndarray]:
-    """Draw ``batch_size`` transitions from ``buffer`` (uniform or prioritised): the batch
-    and the replay slots (B,) it came from. Transitions pushed by hand (no stored discount)
-    get d = γ (1 − done)."""
-    layout = buffer.layout
-    rows = torch.empty(batch_size, max(columns.stop for columns in layout.values()))
-    batch = TransitionBatch.of_rows(rows, layout, obs_dim)
-    _, weights, slots = buffer.sample_rows(batch_size, rows.numpy())
-    first = layout["action_A"].start
-    batch.actions.copy_(rows[:, first : first + 2].T)  # A's column then B's
-    if "discount" not in layout:
-        batch.discount.copy_(gamma * (1.0 - batch.done))
-    batch.weights.copy_(torch.from_numpy(weights))  # all 1 for uniform replay
-    return batch, slots
+class BatchSampler:
+    """Draws batches from a replay buffer (uniform or prioritised) into one block of rows
+    that it reuses from update to update: one gather, no allocation per update. A batch
+    is valid until the next draw."""
+
+    def __init__(self, obs_dim: int, gamma: float) -> None:
+        self.obs_dim, self.gamma = obs_dim, gamma
+        self._block: tuple[tuple, torch.Tensor, TransitionBatch] | None = None
+
+    def sample(self, buffer: ReplayBuffer, batch_size: int) -> tuple[TransitionBatch, np.ndarray]:
+        """``batch_size`` transitions of ``buffer``: the batch and the replay slots (B,) they
+        came from. Transitions pushed by hand (no stored discount) get d = γ (1 − done)."""
+        layout = buffer.layout
+        key = (batch_size, tuple(layout))
+        if self._block is None or self._block[0] != key:
+            rows = torch.empty(batch_size, max(columns.stop for columns in layout.values()))
+            self._block = (key, rows, TransitionBatch.of_rows(rows, layout, self.obs_dim))
+        _, rows, batch = self._block
+        _, weights, slots = buffer.sample_rows(batch_size, rows.numpy())
+        first = layout["action_A"].start
+        batch.actions.copy_(rows[:, first : first + 2].T)  # A's column then B's
+        if "discount" not in layout:
+            batch.discount.copy_(self.gamma * (1.0 - batch.done))
+        batch.weights.copy_(torch.from_numpy(weights))  # all 1 for uniform replay
+        return batch, slots
