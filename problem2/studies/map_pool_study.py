@@ -33,7 +33,6 @@ import argparse
 import csv
 import dataclasses
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -45,6 +44,7 @@ from analysis.held_out import baselines_on_held_out, held_out_success
 from analysis.stats import BOOTSTRAP_RESAMPLES, seed_paired_differences, seed_statistics
 from batch_io import (
     ProgressLine,
+    make_console_safe,
     run_jobs,
     temporary_path_for,
     write_json_atomic,
@@ -327,9 +327,7 @@ def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]
 
 
 def main(argv: list[str] | None = None) -> dict:
-    for stream in (sys.stdout, sys.stderr):
-        if hasattr(stream, "reconfigure"):
-            stream.reconfigure(errors="replace")
+    make_console_safe()
     cfg, args = parse_args(argv)
     if args.plot_only:
         results = json.loads((args.output_dir / "map_pool.json").read_text(encoding="utf-8"))

@@ -32,7 +32,6 @@ and ``timing.json`` (wall time per map: the only file that differs between ident
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -48,7 +47,7 @@ from analysis.stats import (
     mode_contrasts,
     spearman_interval,
 )
-from batch_io import ProgressLine, run_jobs, write_json_atomic
+from batch_io import ProgressLine, make_console_safe, run_jobs, write_json_atomic
 from grid_maps import DEFAULT_MAP_SEED, OBSTACLE, TARGET
 from rollout import EVAL_EPSILON, EVAL_SEED
 from train_config import available_cores
@@ -264,9 +263,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Evaluate every map of the panel and write the study's files."""
-    for stream in (sys.stdout, sys.stderr):
-        if hasattr(stream, "reconfigure"):
-            stream.reconfigure(errors="replace")
+    make_console_safe()
     args = parse_args(argv)
     jobs = [(m, str(folder), args.num_episodes) for m, folder in args.folders.items()]
     done = run_jobs(evaluate_map, jobs, args.workers, ProgressLine(len(jobs), 0))

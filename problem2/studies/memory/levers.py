@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import shutil
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -26,7 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 from analysis.stats import seed_statistics
-from batch_io import ProgressLine, run_jobs, write_json_atomic
+from batch_io import ProgressLine, make_console_safe, run_jobs, write_json_atomic
 from multi_agent_env import MultiAgentEnv
 from train_config import SettingError, TrainConfig, available_cores
 
@@ -112,9 +111,7 @@ def summarise(runs: list[dict]) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    for stream in (sys.stdout, sys.stderr):
-        if hasattr(stream, "reconfigure"):
-            stream.reconfigure(errors="replace")
+    make_console_safe()
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--setting", default="all", help="all, or some of " + ", ".join(SETTINGS))
     parser.add_argument("--workers", type=int, default=available_cores())

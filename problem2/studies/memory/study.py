@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -37,6 +36,7 @@ from analysis.runs import load_policy
 from analysis.stats import seed_paired_differences, seed_statistics
 from batch_io import (
     ProgressLine,
+    make_console_safe,
     run_jobs,
     write_json_atomic,
 )
@@ -304,9 +304,7 @@ def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]
 
 
 def main(argv: list[str] | None = None) -> dict:
-    for stream in (sys.stdout, sys.stderr):
-        if hasattr(stream, "reconfigure"):
-            stream.reconfigure(errors="replace")
+    make_console_safe()
     cfg, args = parse_args(argv)
     if args.plot_only:
         results = json.loads((args.output_dir / "memory.json").read_text(encoding="utf-8"))
