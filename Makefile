@@ -79,6 +79,7 @@ p2-panel: $(RUNTIME_STAMP)
 		$(PY) train.py --mode independent,comm,distance,full --map_seed $$map --num_seeds 5 \
 			--overwrite --output_dir $(P2_STUDIES)/panel/map$$map || exit 1; done
 	cd problem2 && $(PY) -m studies.panel
+	cd problem2 && $(PY) -m studies.panel_long
 
 ## Agents trained on a pool of 2000 generated maps, tested on 40 held-out maps (about 5 min).
 p2-map-pool: $(RUNTIME_STAMP)

@@ -237,14 +237,32 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     add = parser.add_argument
-    add("--panel_dir", "--panel-dir", type=Path, default=PANEL_DIR,
-        help="folder holding map<seed>/agent_models; the outputs are written there")  # fmt: skip
-    add("--maps", type=int_list, default=list(PANEL_MAP_SEEDS),
-        help="map seeds, comma-separated, e.g. 641,4 (default: the panel's rule)")  # fmt: skip
-    add("--num_episodes", "--num-episodes", type=int, default=1000,
-        help="test episodes per trained seed and condition (1..5000)")  # fmt: skip
-    add("--workers", type=int, default=min(2, available_cores()),
-        help="processes evaluating maps in parallel (1..64)")  # fmt: skip
+    add(
+        "--panel_dir",
+        "--panel-dir",
+        type=Path,
+        default=PANEL_DIR,
+        help="folder holding map<seed>/agent_models; the outputs are written there",
+    )
+    add(
+        "--maps",
+        type=int_list,
+        default=list(PANEL_MAP_SEEDS),
+        help="map seeds, comma-separated, e.g. 641,4 (default: the panel's rule)",
+    )
+    add(
+        "--num_episodes",
+        "--num-episodes",
+        type=int,
+        default=1000,
+        help="test episodes per trained seed and condition (1..5000)",
+    )
+    add(
+        "--workers",
+        type=int,
+        default=min(2, available_cores()),
+        help="processes evaluating maps in parallel (1..64)",
+    )
     args = parser.parse_args(argv)
     if not args.maps or min(args.maps) < 0 or len(set(args.maps)) != len(args.maps):
         parser.error(f"--maps must be distinct non-negative integers, got {args.maps}")
