@@ -101,8 +101,8 @@ class MultiAgentTrainer(CourseSkeletonAPI):
         env: the environment (:class:`MapSource`) whose map, window and time limit training
             uses.
         args: a :class:`TrainConfig`, or any namespace with some of its fields (the course
-            skeleton's works); ``mode`` one of independent, comm, full (missing or ``all``
-            means full); the run's seed is ``args.seed``; outputs go to
+            skeleton's works); ``mode`` one of independent, comm, distance, full (missing
+            or ``all`` means full); the run's seed is ``args.seed``; outputs go to
             ``<args.output_dir>/agent_models`` and ``/training_logs`` (default ``results``).
     """
 
