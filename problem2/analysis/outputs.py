@@ -162,6 +162,19 @@ def measure_rows(measures: dict) -> list[list]:
     return rows
 
 
+MEASURE_HEADER = [
+    "experiment",
+    "mode",
+    "bins",
+    "measure",
+    "sender",
+    "mean",
+    "ci95_low",
+    "ci95_high",
+    "seeds",
+]
+
+
 def decomposition_rows(performance: dict) -> list[list]:
     rows = []
     for name, experiment in performance["experiments"].items():
@@ -171,6 +184,19 @@ def decomposition_rows(performance: dict) -> list[list]:
                 for key, stat in entry[condition]["failure_decomposition"].items():
                     rows.append([name, mode, condition, 1 - failed, key, *_ci(stat)])
     return rows
+
+
+DECOMPOSITION_HEADER = [
+    "experiment",
+    "mode",
+    "condition",
+    "failed_share",
+    "quantity",
+    "mean",
+    "ci95_low",
+    "ci95_high",
+    "seeds",
+]
 
 
 def difference_rows(performance: dict) -> list[list]:
@@ -233,6 +259,18 @@ def held_out_rows(generalization: dict) -> list[list]:
     return rows
 
 
+HELD_OUT_HEADER = [
+    "policy",
+    "quantity",
+    "condition",
+    "ci_over",
+    "mean",
+    "ci95_low",
+    "ci95_high",
+    "n",
+]
+
+
 def trace_record(trace: EpisodeTrace) -> dict[str, Any]:
     """An episode shown in ``trajectories.png``: its outcome and each agent's cells as
     [row, col], from the start to the last step."""
@@ -260,33 +298,11 @@ def write_outputs(results: dict[str, Any], outcomes: dict, output_dir: Path) -> 
             output_dir / "interventions.csv", INTERVENTION_HEADER, intervention_rows(interventions)
         ),
         write_csv(
-            output_dir / "communication_measures.csv",
-            [
-                "experiment",
-                "mode",
-                "bins",
-                "measure",
-                "sender",
-                "mean",
-                "ci95_low",
-                "ci95_high",
-                "seeds",
-            ],
-            measure_rows(measures),
+            output_dir / "communication_measures.csv", MEASURE_HEADER, measure_rows(measures)
         ),
         write_csv(
             output_dir / "failure_decomposition.csv",
-            [
-                "experiment",
-                "mode",
-                "condition",
-                "failed_share",
-                "quantity",
-                "mean",
-                "ci95_low",
-                "ci95_high",
-                "seeds",
-            ],
+            DECOMPOSITION_HEADER,
             decomposition_rows(performance),
         ),
     ]
@@ -301,16 +317,7 @@ def write_outputs(results: dict[str, Any], outcomes: dict, output_dir: Path) -> 
             written.append(
                 write_csv(
                     output_dir / "held_out.csv",
-                    [
-                        "policy",
-                        "quantity",
-                        "condition",
-                        "ci_over",
-                        "mean",
-                        "ci95_low",
-                        "ci95_high",
-                        "n",
-                    ],
+                    HELD_OUT_HEADER,
                     held_out_rows(results["generalization"]),
                 )
             )

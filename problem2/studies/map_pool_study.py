@@ -308,7 +308,8 @@ def format_table(results: dict) -> str:
     return "\n".join(lines)
 
 
-def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]:
+def build_parser() -> argparse.ArgumentParser:
+    """The study's command-line flags."""
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
@@ -357,6 +358,11 @@ def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]
         action="store_true",
         help="only redraw map_pool.png from the map_pool.json in --output_dir (no training)",
     )
+    return parser
+
+
+def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.plot_only and not (args.output_dir / "map_pool.json").is_file():
         parser.error(f"--plot_only: {args.output_dir / 'map_pool.json'} does not exist")

@@ -258,7 +258,8 @@ def verdicts(learned: dict) -> dict:
     return result
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The study's command-line flags."""
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -267,15 +268,19 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--per_step_models",
         type=Path,
         default=STUDY_DIR / "per_step" / "agent_models",
-        help="agent_models folder of the batch trained on the assignment's reward "
-        "(default: results/studies/reward/per_step/agent_models)",
+        help=(
+            "agent_models folder of the batch trained on the assignment's reward "
+            "(default: results/studies/reward/per_step/agent_models)"
+        ),
     )
     add(
         "--arrival_models",
         type=Path,
         default=STUDY_DIR / "arrival" / "agent_models",
-        help="agent_models folder of the batch trained on the arrival reward "
-        "(default: results/studies/reward/arrival/agent_models)",
+        help=(
+            "agent_models folder of the batch trained on the arrival reward "
+            "(default: results/studies/reward/arrival/agent_models)"
+        ),
     )
     add(
         "--output_dir",
@@ -314,6 +319,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         action="store_true",
         help="only redraw reward_study.png from the reward_study.json in --output_dir",
     )
+    return parser
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.plot_only:
         if not (args.output_dir / "reward_study.json").is_file():

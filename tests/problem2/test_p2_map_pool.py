@@ -208,24 +208,21 @@ def test_shaping_adds_the_bonuses_only_to_what_is_learned(tmp_path: Path) -> Non
 
 # ---------------------------------------------------------------------- the study
 def tiny_study_config(**settings) -> TrainConfig:
-    return TrainConfig(
-        **map_pool_study.RECIPE
-        | dict(
-            total_steps=1024,
-            num_envs=16,
-            batch_size=32,
-            learning_starts=256,
-            buffer_size=2048,
-            eval_interval=512,
-            eval_episodes=16,
-            map_pool=30,
-            validation_maps=8,
-            seeds=[0],
-            workers=1,
-            max_steps=12,
-        )
-        | settings
-    ).validate()
+    tiny = dict(
+        total_steps=1024,
+        num_envs=16,
+        batch_size=32,
+        learning_starts=256,
+        buffer_size=2048,
+        eval_interval=512,
+        eval_episodes=16,
+        map_pool=30,
+        validation_maps=8,
+        seeds=[0],
+        workers=1,
+        max_steps=12,
+    )
+    return TrainConfig(**map_pool_study.RECIPE | tiny | settings).validate()
 
 
 def test_tiny_study_end_to_end_and_reproducible(tmp_path: Path) -> None:
