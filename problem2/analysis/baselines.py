@@ -262,11 +262,17 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--episodes", type=int, default=1000, help="test episodes per map")
     parser.add_argument("--seed", type=int, default=EVAL_SEED, help="seed of the start cells")
-    parser.add_argument("--map_seeds", "--map-seeds", type=int_list, nargs="+",
-                        default=",".join(map(str, MAP_SEEDS)),
-                        help="map seeds, as 641,0,1 or 641 0 1")  # fmt: skip
-    parser.add_argument("--output", type=Path, default=RESULTS_DIR / "baselines.json",
-                        help="JSON file written")  # fmt: skip
+    parser.add_argument(
+        "--map_seeds",
+        "--map-seeds",
+        type=int_list,
+        nargs="+",
+        default=",".join(map(str, MAP_SEEDS)),
+        help="map seeds, as 641,0,1 or 641 0 1",
+    )
+    parser.add_argument(
+        "--output", type=Path, default=RESULTS_DIR / "baselines.json", help="JSON file written"
+    )
     args = parser.parse_args(argv)
     parts = args.map_seeds  # a list of lists from the command line, one list by default
     map_seeds = tuple(s for part in parts for s in (part if isinstance(part, list) else [part]))

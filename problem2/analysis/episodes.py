@@ -67,13 +67,15 @@ class RecordingEnv:
         obs = self.env.reset(seed=seed, positions=positions)
         n, horizon = self.n_envs, self.max_steps
         self.t, self.active = 0, np.ones(n, dtype=bool)
-        self.rounds.append({
-            "positions": np.zeros((n, horizon + 1, 2, 2), dtype=np.int64),
-            "observations": np.zeros((n, horizon + 1, 2, self.env.obs_dim), dtype=np.float32),
-            "actions": np.full((n, horizon, 2), -1, dtype=np.int64),
-            "messages": np.full((n, horizon, 2), np.nan, dtype=np.float32),
-            "rewards": np.zeros((n, horizon), dtype=np.float32),
-        })  # fmt: skip
+        self.rounds.append(
+            {
+                "positions": np.zeros((n, horizon + 1, 2, 2), dtype=np.int64),
+                "observations": np.zeros((n, horizon + 1, 2, self.env.obs_dim), dtype=np.float32),
+                "actions": np.full((n, horizon, 2), -1, dtype=np.int64),
+                "messages": np.full((n, horizon, 2), np.nan, dtype=np.float32),
+                "rewards": np.zeros((n, horizon), dtype=np.float32),
+            }
+        )
         log = self.rounds[-1]
         log["positions"][:, 0], log["observations"][:, 0] = self.env.positions, obs
         return obs

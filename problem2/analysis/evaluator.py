@@ -62,7 +62,7 @@ def split_blocks(results: EpisodeResults, blocks: int) -> list[EpisodeResults]:
             fields[1][k],
             fields[2][k],
             {key: v[k] for key, v in split.items()} if split is not None else None,
-        )  # fmt: skip
+        )
         for k in range(blocks)
     ]
 
@@ -195,8 +195,10 @@ class MultiAgentEvaluator:
             grid, limit = self.setting.grid, self.setting.max_steps
             print(render_state(grid, positions[0], 0, limit, (0.0, 0.0)))
             for t in range(steps):
-                print(f"actions A {info['actions'][t][0]}, B {info['actions'][t][1]}; "
-                      f"reward {float(trajectories['rewards'][0, t]):+.1f}")  # fmt: skip
+                print(
+                    f"actions A {info['actions'][t][0]}, B {info['actions'][t][1]}; "
+                    f"reward {float(trajectories['rewards'][0, t]):+.1f}"
+                )
                 print(render_state(grid, positions[t + 1], t + 1, limit, messages[t]))
             print("success: both agents on the target" if success else "failure: time ran out")
         return float(run.returns[0]), success, info
@@ -250,7 +252,7 @@ class MultiAgentEvaluator:
                     constants[channel, name],
                     seed * 100 + number,
                 )
-            }  # fmt: skip
+            }
             for number, (channel, name, kind) in enumerate(blocks)
         ]
         epsilons = [self.conditions[name] for _, name, _ in blocks]
@@ -315,9 +317,10 @@ class MultiAgentEvaluator:
                 entry[name] = float(results.successes.mean())
             if oracle:
                 entry["oracle"] = summarize(
-                    run_episodes(setting.make_env(num_episodes), oracle_policy(grid), num_episodes,
-                                 self.seed)
-                )  # fmt: skip
+                    run_episodes(
+                        setting.make_env(num_episodes), oracle_policy(grid), num_episodes, self.seed
+                    )
+                )
             maps[str(map_seed)] = entry
         means = {
             f"mean_{n}": float(np.mean([m[n] for m in maps.values()])) for n in self.conditions
@@ -333,9 +336,13 @@ class MultiAgentEvaluator:
 
 
 def experiment_evaluator(
-    experiment: Experiment, epsilon: float, mode: str | None = None, seed: int | None = None,
-    models_dir: Path | None = None, **kw,
-) -> MultiAgentEvaluator:  # fmt: skip
+    experiment: Experiment,
+    epsilon: float,
+    mode: str | None = None,
+    seed: int | None = None,
+    models_dir: Path | None = None,
+    **kw,
+) -> MultiAgentEvaluator:
     """An evaluator on ``experiment``'s map and time limit: of the pair (``mode``, ``seed``)
     loaded from ``models_dir`` (default: the experiment's models folder), or, without
     ``mode``, of ``kw["policy_factory"]``."""

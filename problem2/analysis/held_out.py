@@ -55,7 +55,10 @@ def baselines_on_held_out(
     return {
         name: held_out_success(
             lambda grid, map_seed, epsilon, make=POLICIES[name]: make(grid, EVAL_SEED + map_seed),
-            episodes, max_steps, {"greedy": 0.0}, grid_size,
+            episodes,
+            max_steps,
+            {"greedy": 0.0},
+            grid_size,
         )["greedy"]
         for name in names
-    }  # fmt: skip
+    }

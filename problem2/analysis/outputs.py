@@ -135,10 +135,20 @@ def intervention_rows(interventions: dict) -> list[list]:
 
 
 INTERVENTION_HEADER = [
-    "experiment", "mode", "channel", "condition", "intervention", "success_mean",
-    "success_ci95_low", "success_ci95_high", "seeds", "delta_success_mean",
-    "delta_success_ci95_low", "delta_success_ci95_high", "verdict",
-]  # fmt: skip
+    "experiment",
+    "mode",
+    "channel",
+    "condition",
+    "intervention",
+    "success_mean",
+    "success_ci95_low",
+    "success_ci95_high",
+    "seeds",
+    "delta_success_mean",
+    "delta_success_ci95_low",
+    "delta_success_ci95_high",
+    "verdict",
+]
 
 
 def measure_rows(measures: dict) -> list[list]:
@@ -152,6 +162,19 @@ def measure_rows(measures: dict) -> list[list]:
     return rows
 
 
+MEASURE_HEADER = [
+    "experiment",
+    "mode",
+    "bins",
+    "measure",
+    "sender",
+    "mean",
+    "ci95_low",
+    "ci95_high",
+    "seeds",
+]
+
+
 def decomposition_rows(performance: dict) -> list[list]:
     rows = []
     for name, experiment in performance["experiments"].items():
@@ -163,23 +186,56 @@ def decomposition_rows(performance: dict) -> list[list]:
     return rows
 
 
+DECOMPOSITION_HEADER = [
+    "experiment",
+    "mode",
+    "condition",
+    "failed_share",
+    "quantity",
+    "mean",
+    "ci95_low",
+    "ci95_high",
+    "seeds",
+]
+
+
 def difference_rows(performance: dict) -> list[list]:
     rows = []
     for name, experiment in performance["experiments"].items():
         for conditions in experiment.get("mode_differences", {}).values():
             for condition, d in conditions.items():
                 rows.append(
-                    [name, d["first"], d["second"], condition, d["mean"], *d["ci95"],
-                     *d["ci95_seeds_only"], d["established"], *d["seeds"], d["episodes"]]
-                )  # fmt: skip
+                    [
+                        name,
+                        d["first"],
+                        d["second"],
+                        condition,
+                        d["mean"],
+                        *d["ci95"],
+                        *d["ci95_seeds_only"],
+                        d["established"],
+                        *d["seeds"],
+                        d["episodes"],
+                    ]
+                )
     return rows
 
 
 DIFFERENCE_HEADER = [
-    "experiment", "first", "second", "condition", "difference_mean", "ci95_low", "ci95_high",
-    "seeds_only_ci95_low", "seeds_only_ci95_high", "established", "seeds_first",
-    "seeds_second", "episodes",
-]  # fmt: skip
+    "experiment",
+    "first",
+    "second",
+    "condition",
+    "difference_mean",
+    "ci95_low",
+    "ci95_high",
+    "seeds_only_ci95_low",
+    "seeds_only_ci95_high",
+    "established",
+    "seeds_first",
+    "seeds_second",
+    "episodes",
+]
 
 
 def held_out_rows(generalization: dict) -> list[list]:
@@ -191,18 +247,39 @@ def held_out_rows(generalization: dict) -> list[list]:
     for mode, conditions in held_out["modes"].items():
         for condition, entry in conditions.items():
             for quantity, stat in entry.items():
-                rows.append([mode, quantity, condition, "seeds" if "seeds" in quantity else "maps",
-                             *_ci(stat)])  # fmt: skip
+                rows.append(
+                    [
+                        mode,
+                        quantity,
+                        condition,
+                        "seeds" if "seeds" in quantity else "maps",
+                        *_ci(stat),
+                    ]
+                )
     return rows
+
+
+HELD_OUT_HEADER = [
+    "policy",
+    "quantity",
+    "condition",
+    "ci_over",
+    "mean",
+    "ci95_low",
+    "ci95_high",
+    "n",
+]
 
 
 def trace_record(trace: EpisodeTrace) -> dict[str, Any]:
     """An episode shown in ``trajectories.png``: its outcome and each agent's cells as
     [row, col], from the start to the last step."""
     return {
-        "success": trace.success, "length": trace.length, "description": trace.description,
+        "success": trace.success,
+        "length": trace.length,
+        "description": trace.description,
         "cells": {name: trace.positions[:, k].astype(int).tolist() for k, name in enumerate("AB")},
-    }  # fmt: skip
+    }
 
 
 def write_outputs(results: dict[str, Any], outcomes: dict, output_dir: Path) -> list[Path]:
@@ -217,27 +294,33 @@ def write_outputs(results: dict[str, Any], outcomes: dict, output_dir: Path) -> 
         write_json(output_dir / "failure_analysis.json", failure_analysis(performance)),
         write_json(output_dir / "interventions.json", interventions),
         write_json(output_dir / "communication_measures.json", measures),
-        write_csv(output_dir / "interventions.csv", INTERVENTION_HEADER,
-                  intervention_rows(interventions)),
-        write_csv(output_dir / "communication_measures.csv",
-                  ["experiment", "mode", "bins", "measure", "sender", "mean", "ci95_low",
-                   "ci95_high", "seeds"], measure_rows(measures)),
-        write_csv(output_dir / "failure_decomposition.csv",
-                  ["experiment", "mode", "condition", "failed_share", "quantity", "mean",
-                   "ci95_low", "ci95_high", "seeds"], decomposition_rows(performance)),
-    ]  # fmt: skip
+        write_csv(
+            output_dir / "interventions.csv", INTERVENTION_HEADER, intervention_rows(interventions)
+        ),
+        write_csv(
+            output_dir / "communication_measures.csv", MEASURE_HEADER, measure_rows(measures)
+        ),
+        write_csv(
+            output_dir / "failure_decomposition.csv",
+            DECOMPOSITION_HEADER,
+            decomposition_rows(performance),
+        ),
+    ]
     written.append(
-        write_csv(output_dir / "mode_differences.csv", DIFFERENCE_HEADER,
-                  difference_rows(performance))
-    )  # fmt: skip
+        write_csv(
+            output_dir / "mode_differences.csv", DIFFERENCE_HEADER, difference_rows(performance)
+        )
+    )
     if "generalization" in results:
         written.append(write_json(output_dir / "generalization.json", results["generalization"]))
         if "held_out" in results["generalization"]:
             written.append(
-                write_csv(output_dir / "held_out.csv",
-                          ["policy", "quantity", "condition", "ci_over", "mean", "ci95_low",
-                           "ci95_high", "n"], held_out_rows(results["generalization"]))
-            )  # fmt: skip
+                write_csv(
+                    output_dir / "held_out.csv",
+                    HELD_OUT_HEADER,
+                    held_out_rows(results["generalization"]),
+                )
+            )
     with temporary_path_for(output_dir / "comparison_table.md") as temporary:
         temporary.write_text(format_report(results), encoding="utf-8")
     written.append(output_dir / "comparison_table.md")
@@ -250,8 +333,10 @@ def write_outputs(results: dict[str, Any], outcomes: dict, output_dir: Path) -> 
         traces = representative_traces(runs, target)
         rows.append((label, traces))
         heat.append((label, mean_message_per_cell(runs["greedy"], grid.shape)))
-        routes[mode] = {"seed": entry["modes"][mode]["best_seed"],
-                        "episodes": [trace_record(t) for t in traces if t is not None]}  # fmt: skip
+        routes[mode] = {
+            "seed": entry["modes"][mode]["best_seed"],
+            "episodes": [trace_record(t) for t in traces if t is not None],
+        }
         shown = traces[0] or traces[1]
         if shown is not None:
             title = f"{mode}: {'success' if shown.success else 'failure'}"

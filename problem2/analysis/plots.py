@@ -160,8 +160,16 @@ def draw_waiting(ax: Axes, trace: EpisodeTrace, target: tuple[int, int]) -> str:
         if steps > 0:
             size = 12 + 4 * agent
             colour, name = AGENT_COLOURS[agent], "AB"[agent]
-            ax.plot(target[1], target[0], "o", ms=size, mfc="none", mec=colour, mew=1.8,
-                    label=f"{name} waits on the target")  # fmt: skip
+            ax.plot(
+                target[1],
+                target[0],
+                "o",
+                ms=size,
+                mfc="none",
+                mec=colour,
+                mew=1.8,
+                label=f"{name} waits on the target",
+            )
             words.append(f"{name} waits {steps} step{'s' if steps != 1 else ''}")
     return ", ".join(words)
 

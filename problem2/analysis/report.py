@@ -59,8 +59,9 @@ def _baseline_rows(experiment: dict) -> list[list[str]]:
         explored = summary.get("eps", summary)  # the oracle is also run at ε; the others greedy
         rate, rate_eps = f"{summary['success_rate']:.3f}", f"{explored['success_rate']:.3f}"
         steps = _number(explored["mean_steps_to_success"], 1)
-        rows.append([name, rate, rate, rate_eps, rate_eps, "–", steps,
-                     _number(explored["mean_return"])])  # fmt: skip
+        rows.append(
+            [name, rate, rate, rate_eps, rate_eps, "–", steps, _number(explored["mean_return"])]
+        )
     return rows
 
 
@@ -148,8 +149,16 @@ def message_section(communication: dict) -> list[str]:
             verdicts.append(f"- {name}, {entry['label']}: {causal['verdict']}")
     if not rows:
         return []
-    header = ["experiment", "mode", "condition", "real", "shuffled", "zeroed",
-              "real − shuffled [95 % CI]", "per seed"]  # fmt: skip
+    header = [
+        "experiment",
+        "mode",
+        "condition",
+        "real",
+        "shuffled",
+        "zeroed",
+        "real − shuffled [95 % CI]",
+        "per seed",
+    ]
     return [
         "## Is the message used? (success with the real, a shuffled and a zeroed message)",
         "",
@@ -178,9 +187,10 @@ def generalization_section(generalization: dict | None) -> list[str]:
             row.append(f"{stats['greedy']['mean']:.3f} / {stats['eps']['mean']:.3f}")
         rows.append(row)
     means = generalization["mean_over_maps"]
-    rows.append(["mean", "", "", ""] + [
-        f"{_stat(means[m]['greedy'])} / {_stat(means[m]['eps'])}" for m in modes
-    ])  # fmt: skip
+    rows.append(
+        ["mean", "", "", ""]
+        + [f"{_stat(means[m]['greedy'])} / {_stat(means[m]['eps'])}" for m in modes]
+    )
     return [
         f"## Generalisation: models trained on map {generalization['trained_map_seed']} on "
         f"unseen map seeds 0–{len(maps) - 1}",
@@ -210,8 +220,14 @@ def intervention_section(communication: dict) -> list[str]:
                 )
     if not rows:
         return []
-    header = ["mode", "channel", "condition", "success (real)", "intervention",
-              "Δ success [95 % CI over seeds]"]  # fmt: skip
+    header = [
+        "mode",
+        "channel",
+        "condition",
+        "success (real)",
+        "intervention",
+        "Δ success [95 % CI over seeds]",
+    ]
     return [
         "## What the agents use of each input channel (main experiment)",
         "",
@@ -270,11 +286,15 @@ def differences_section(performance: dict) -> list[str]:
             for condition, d in conditions.items():
                 low, high = d["ci95"]
                 rows.append(
-                    [name, f"{d['first']} − {d['second']}", condition,
-                     f"{d['mean']:+.3f} [{low:+.3f}, {high:+.3f}]",
-                     "[{:+.3f}, {:+.3f}]".format(*d["ci95_seeds_only"]),
-                     "**yes**" if d["established"] else "no"]
-                )  # fmt: skip
+                    [
+                        name,
+                        f"{d['first']} − {d['second']}",
+                        condition,
+                        f"{d['mean']:+.3f} [{low:+.3f}, {high:+.3f}]",
+                        "[{:+.3f}, {:+.3f}]".format(*d["ci95_seeds_only"]),
+                        "**yes**" if d["established"] else "no",
+                    ]
+                )
     if not rows:
         return []
     text = performance["protocol"].get("mode_differences", "")
@@ -283,10 +303,19 @@ def differences_section(performance: dict) -> list[str]:
         "",
         text[0].upper() + text[1:] + ".",
         "",
-        *_table(["experiment", "difference", "condition", "mean [95 % CI]",
-                 "CI, episodes fixed", "established (CI excludes 0)"], rows),
+        *_table(
+            [
+                "experiment",
+                "difference",
+                "condition",
+                "mean [95 % CI]",
+                "CI, episodes fixed",
+                "established (CI excludes 0)",
+            ],
+            rows,
+        ),
         "",
-    ]  # fmt: skip
+    ]
 
 
 def held_out_section(generalization: dict | None) -> list[str]:
@@ -309,11 +338,17 @@ def held_out_section(generalization: dict | None) -> list[str]:
         "Baselines are greedy (their two columns agree). CI over maps, except the last "
         "column (each seed's mean over the maps, CI over seeds).",
         "",
-        *_table(["policy", "success greedy [95 % CI over maps]",
-                 f"success ε = {held_out['epsilon']} [CI over maps]",
-                 "success ε [CI over seeds]"], rows),
+        *_table(
+            [
+                "policy",
+                "success greedy [95 % CI over maps]",
+                f"success ε = {held_out['epsilon']} [CI over maps]",
+                "success ε [CI over seeds]",
+            ],
+            rows,
+        ),
         "",
-    ]  # fmt: skip
+    ]
 
 
 def format_report(results: dict[str, Any], brief: bool = False) -> str:

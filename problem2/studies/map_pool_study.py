@@ -61,13 +61,29 @@ from studies.staging import best_env_steps, best_selection, check_field, staged_
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "map_pool"
 RECIPE: dict[str, Any] = dict(
-    map_pool=2000, validation_maps=200, share_weights=True, coverage_bonus=0.05,
-    on_target_bonus=0.1, n_step=3, gamma=0.95, lr=2.5e-4, target_update=1000, batch_size=256,
+    map_pool=2000,
+    validation_maps=200,
+    share_weights=True,
+    coverage_bonus=0.05,
+    on_target_bonus=0.1,
+    n_step=3,
+    gamma=0.95,
+    lr=2.5e-4,
+    target_update=1000,
+    batch_size=256,
     updates_per_step=2,
-    hidden_dim=64, total_steps=1_000_000, select_by="success", epsilon_fraction=0.3,
-    lr_end_factor=0.1, eval_interval=50_000, eval_episodes=500, seeds=[0, 1, 2, 3, 4],
-    reward_mode="arrival", target_potential=0.0, advantage_learning=0.0,
-)  # fmt: skip
+    hidden_dim=64,
+    total_steps=1_000_000,
+    select_by="success",
+    epsilon_fraction=0.3,
+    lr_end_factor=0.1,
+    eval_interval=50_000,
+    eval_episodes=500,
+    seeds=[0, 1, 2, 3, 4],
+    reward_mode="arrival",
+    target_potential=0.0,
+    advantage_learning=0.0,
+)
 # The recipe keeps its own reward and TD target (the arrival reward, no advantage learning):
 # the main experiment's defaults changed after the recipe was chosen.
 STUDY_POOL_SIZES = int_in(1, MAX_POOL_SIZE)  # a pool of maps: train.py's 0 (one map) is not one
@@ -106,8 +122,10 @@ def train_and_test(
     trained = time.perf_counter() - start
     rates = held_out_success(
         lambda grid, map_seed, epsilon: trainer.policy(epsilon, seed=EVAL_SEED + map_seed),
-        episodes, cfg.max_steps, CONDITIONS,
-    )  # fmt: skip
+        episodes,
+        cfg.max_steps,
+        CONDITIONS,
+    )
     return {
         "mode": mode,
         "seed": seed,
@@ -167,7 +185,7 @@ def summarise(cfg: TrainConfig, runs: list[dict], heuristics: dict, episodes: in
         "runs": {
             f"{r['mode']}_seed{r['seed']}": {k: v for k, v in r.items() if k != "seconds"}
             for r in runs
-        },  # fmt: skip
+        },
     }
 
 
@@ -196,8 +214,13 @@ def draw_success_bars(ax: Axes, modes: list[str], arms: list[tuple[str, str, dic
             x, stats = i + 0.36 * (k - (len(present) - 1) / 2), stats_of[mode]
             low, high = stats["ci95"]
             ax.bar(x, stats["mean"], 0.34, color=colour, label=label)
-            ax.errorbar(x, stats["mean"], [[stats["mean"] - low], [high - stats["mean"]]],
-                        color="black", capsize=3)  # fmt: skip
+            ax.errorbar(
+                x,
+                stats["mean"],
+                [[stats["mean"] - low], [high - stats["mean"]]],
+                color="black",
+                capsize=3,
+            )
             ax.plot([x] * len(stats["per_seed"]), stats["per_seed"], "k.", ms=3)
     ax.set_xticks(range(len(modes)), modes)
     ax.set_ylim(0, 1)
@@ -275,45 +298,81 @@ def run_study(cfg: TrainConfig, episodes: int, output_dir: Path) -> dict:
 def format_table(results: dict) -> str:
     lines = [f"{'held-out success':<16} {'greedy (95% CI)':>22} {'eps 0.05 (95% CI)':>22}"]
     for mode, entry in results["held_out"]["modes"].items():
-        cells = [f"{s['mean']:.3f} [{s['ci95'][0]:.3f}, {s['ci95'][1]:.3f}]"
-                 for s in (entry["greedy"], entry["eps"])]  # fmt: skip
+        cells = [
+            f"{s['mean']:.3f} [{s['ci95'][0]:.3f}, {s['ci95'][1]:.3f}]"
+            for s in (entry["greedy"], entry["eps"])
+        ]
         lines.append(f"{mode:<16} {cells[0]:>22} {cells[1]:>22}")
     for name, stats in results["held_out"]["heuristics"].items():
         lines.append(f"{name:<16} {stats['mean']:>9.3f} (CI over maps)")
     return "\n".join(lines)
 
 
-def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]:
+def build_parser() -> argparse.ArgumentParser:
+    """The study's command-line flags."""
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     add = parser.add_argument
-    add("--total_steps", "--total-steps", type=int, default=RECIPE["total_steps"],
-        help="environment steps per run")  # fmt: skip
-    add("--num_seeds", "--num-seeds", type=int, default=len(RECIPE["seeds"]),
-        help="training seeds per mode (seeds 0, 1, ...)")  # fmt: skip
+    add(
+        "--total_steps",
+        "--total-steps",
+        type=int,
+        default=RECIPE["total_steps"],
+        help="environment steps per run",
+    )
+    add(
+        "--num_seeds",
+        "--num-seeds",
+        type=int,
+        default=len(RECIPE["seeds"]),
+        help="training seeds per mode (seeds 0, 1, ...)",
+    )
     add("--mode", default="all", help="all, or a comma-separated list of " + ", ".join(MODES))
-    add("--map_pool", "--map-pool", type=int, default=RECIPE["map_pool"],
-        help=f"training maps (1..{MAX_POOL_SIZE})")  # fmt: skip
-    add("--episodes_per_map", "--episodes-per-map", type=int, default=500,
-        help="test episodes per held-out map and condition (1..100000)")  # fmt: skip
+    add(
+        "--map_pool",
+        "--map-pool",
+        type=int,
+        default=RECIPE["map_pool"],
+        help=f"training maps (1..{MAX_POOL_SIZE})",
+    )
+    add(
+        "--episodes_per_map",
+        "--episodes-per-map",
+        type=int,
+        default=500,
+        help="test episodes per held-out map and condition (1..100000)",
+    )
     add("--workers", type=int, default=available_cores(), help="parallel training processes")
-    add("--output_dir", "--output-dir", type=Path, default=STUDY_DIR,
-        help="folder written (relative: to the current folder)")  # fmt: skip
+    add(
+        "--output_dir",
+        "--output-dir",
+        type=Path,
+        default=STUDY_DIR,
+        help="folder written (relative: to the current folder)",
+    )
     add(
         "--plot_only",
         "--plot-only",
         action="store_true",
         help="only redraw map_pool.png from the map_pool.json in --output_dir (no training)",
     )
+    return parser
+
+
+def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.plot_only and not (args.output_dir / "map_pool.json").is_file():
         parser.error(f"--plot_only: {args.output_dir / 'map_pool.json'} does not exist")
     settings = RECIPE | {
-        "total_steps": args.total_steps, "seeds": list(range(args.num_seeds)),
-        "mode": args.mode, "map_pool": args.map_pool, "workers": args.workers,
-    }  # fmt: skip
+        "total_steps": args.total_steps,
+        "seeds": list(range(args.num_seeds)),
+        "mode": args.mode,
+        "map_pool": args.map_pool,
+        "workers": args.workers,
+    }
     try:
         check_value("episodes_per_map", args.episodes_per_map, int_in(1, 100_000))
         check_value("map_pool", args.map_pool, STUDY_POOL_SIZES)

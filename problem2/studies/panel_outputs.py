@@ -105,11 +105,25 @@ def plot_effects(path: Path, results: dict[str, Any]) -> None:
             assignment = entry["map_seed"] == ASSIGNMENT_MAP
             colour = "#c0392b" if assignment else "#2c5d8f"
             low, high = effect["ci95"]
-            ax.errorbar(position, effect["mean"], [[effect["mean"] - low], [high - effect["mean"]]],
-                        fmt="o" if assignment else "s", ms=4.5, color=colour, elinewidth=0.9,
-                        capsize=1.5, mfc=colour if effect["established"] else "white")  # fmt: skip
-            ax.annotate(str(entry["map_seed"]), (position, effect["mean"]), xytext=(3, 2),
-                        textcoords="offset points", fontsize=FONT, color=colour)  # fmt: skip
+            ax.errorbar(
+                position,
+                effect["mean"],
+                [[effect["mean"] - low], [high - effect["mean"]]],
+                fmt="o" if assignment else "s",
+                ms=4.5,
+                color=colour,
+                elinewidth=0.9,
+                capsize=1.5,
+                mfc=colour if effect["established"] else "white",
+            )
+            ax.annotate(
+                str(entry["map_seed"]),
+                (position, effect["mean"]),
+                xytext=(3, 2),
+                textcoords="offset points",
+                fontsize=FONT,
+                color=colour,
+            )
         ax.axhline(0, color="0.4", linewidth=0.8)
         terms = results["protocol"]["effects"][name]["coefficients"]
         ax.set_title(f"{name}\n{contrast_text(terms)}", fontsize=FONT + 1)
@@ -126,8 +140,17 @@ def plot_effects(path: Path, results: dict[str, Any]) -> None:
         axes[0].errorbar([], [], [], fmt="s", color="#2c5d8f", ms=4.5, label=label, mfc=face)
         for label, face in (("interval excludes 0", "#2c5d8f"), ("interval includes 0", "white"))
     ]
-    handles.append(axes[0].errorbar([], [], [], fmt="o", color="#c0392b", ms=4.5,
-                                    label=f"map {ASSIGNMENT_MAP}, the assignment's"))  # fmt: skip
+    handles.append(
+        axes[0].errorbar(
+            [],
+            [],
+            [],
+            fmt="o",
+            color="#c0392b",
+            ms=4.5,
+            label=f"map {ASSIGNMENT_MAP}, the assignment's",
+        )
+    )
     fig.legend(handles=handles, loc="outside lower center", ncols=3, fontsize=FONT, frameon=False)
     save_figure(fig, path, dpi=150)
 

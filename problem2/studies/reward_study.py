@@ -258,34 +258,72 @@ def verdicts(learned: dict) -> dict:
     return result
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """The study's command-line flags."""
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
     )
     add = parser.add_argument
-    add("--per_step_models", type=Path, default=STUDY_DIR / "per_step" / "agent_models",
-        help="agent_models folder of the batch trained on the assignment's reward "
-             "(default: results/studies/reward/per_step/agent_models)")  # fmt: skip
-    add("--arrival_models", type=Path, default=STUDY_DIR / "arrival" / "agent_models",
-        help="agent_models folder of the batch trained on the arrival reward "
-             "(default: results/studies/reward/arrival/agent_models)")  # fmt: skip
-    add("--output_dir", type=Path, default=STUDY_DIR,
-        help="where reward_study.json and .png go (default: results/studies/reward)")  # fmt: skip
+    add(
+        "--per_step_models",
+        type=Path,
+        default=STUDY_DIR / "per_step" / "agent_models",
+        help=(
+            "agent_models folder of the batch trained on the assignment's reward "
+            "(default: results/studies/reward/per_step/agent_models)"
+        ),
+    )
+    add(
+        "--arrival_models",
+        type=Path,
+        default=STUDY_DIR / "arrival" / "agent_models",
+        help=(
+            "agent_models folder of the batch trained on the arrival reward "
+            "(default: results/studies/reward/arrival/agent_models)"
+        ),
+    )
+    add(
+        "--output_dir",
+        type=Path,
+        default=STUDY_DIR,
+        help="where reward_study.json and .png go (default: results/studies/reward)",
+    )
     add("--num_episodes", type=int, default=1000, help="test episodes per seed (default 1000)")
-    add("--epsilon", type=float, default=EVAL_EPSILON,
-        help="exploration rate of the epsilon-greedy condition (default %(default)s)")  # fmt: skip
-    add("--map_seed", type=int, default=DEFAULT_MAP_SEED,
-        help="map of the DP; the batches must be trained on it (default %(default)s)")  # fmt: skip
-    add("--gamma", type=float, default=joint_dp.GAMMA,
-        help="discount of the DP, in (0, 1) (default %(default)s)")  # fmt: skip
-    add("--max_steps", type=int, default=joint_dp.HORIZON,
-        help="episode length of the DP and the evaluation (default %(default)s)")  # fmt: skip
+    add(
+        "--epsilon",
+        type=float,
+        default=EVAL_EPSILON,
+        help="exploration rate of the epsilon-greedy condition (default %(default)s)",
+    )
+    add(
+        "--map_seed",
+        type=int,
+        default=DEFAULT_MAP_SEED,
+        help="map of the DP; the batches must be trained on it (default %(default)s)",
+    )
+    add(
+        "--gamma",
+        type=float,
+        default=joint_dp.GAMMA,
+        help="discount of the DP, in (0, 1) (default %(default)s)",
+    )
+    add(
+        "--max_steps",
+        type=int,
+        default=joint_dp.HORIZON,
+        help="episode length of the DP and the evaluation (default %(default)s)",
+    )
     add("--dp_only", action="store_true", help="compute the exact DP only (no trained agents)")
     add(
         "--plot_only",
         action="store_true",
         help="only redraw reward_study.png from the reward_study.json in --output_dir",
     )
+    return parser
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.plot_only:
         if not (args.output_dir / "reward_study.json").is_file():

@@ -15,8 +15,10 @@ def format_table(study: dict) -> str:
     mode and condition plus the verdict."""
     dp = study["exact_dp"]
     lines = [f"exact DP, map seed {study['protocol']['map_seed']}, {dp['start_pairs']} starts"]
-    lines.append(f"{'problem':>15} {'reward':>9} {'V*(start)':>9} {'success':>8} {'steps':>6} "
-                 f"{'ret assign':>10} {'ret arrival':>11} {'one never':>9}")  # fmt: skip
+    lines.append(
+        f"{'problem':>15} {'reward':>9} {'V*(start)':>9} {'success':>8} {'steps':>6} "
+        f"{'ret assign':>10} {'ret arrival':>11} {'one never':>9}"
+    )
     for problem in ("finite_horizon", "stationary"):
         for reward, row in dp[problem].items():
             steps = row["mean_steps_to_success"]

@@ -128,6 +128,7 @@ def summarise_mode(logs_dir: Path, mode: str) -> dict[str, Any]:
         "in_place_off_target_share": float(
             np.mean([d["in_place_off_target_share"] for d in diagnoses])
         ),
+        # the most of any run
         "arrivals_per_failed_episode": max(
             (
                 d["arrivals_per_failed_episode"]
@@ -135,7 +136,7 @@ def summarise_mode(logs_dir: Path, mode: str) -> dict[str, Any]:
                 if d["arrivals_per_failed_episode"] is not None
             ),
             default=None,
-        ),  # fmt: skip  (the most of any run)
+        ),
     }
 
 

@@ -36,8 +36,9 @@ def test_oracle_always_succeeds_along_shortest_paths(map_seed: int) -> None:
     assert results.successes.all()
     distances = target_distances(grid)
     start = results.trajectories["positions"][:, 0]
-    farther = np.maximum(distances[start[:, 0, 0], start[:, 0, 1]],
-                         distances[start[:, 1, 0], start[:, 1, 1]])  # fmt: skip
+    farther = np.maximum(
+        distances[start[:, 0, 0], start[:, 0, 1]], distances[start[:, 1, 0], start[:, 1, 1]]
+    )
     assert np.array_equal(results.lengths, farther)  # the slower agent sets the pace
     assert (results.lengths <= 50).all()
 

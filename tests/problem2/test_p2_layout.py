@@ -1,16 +1,18 @@
-"""The house: imports flow one way (studies -> analysis -> core), the core is laid out by
-``ruff format`` alone, and the default update is the autograd one that a reader finds in
-``trainer.td_loss``."""
+"""The house: imports flow one way (studies -> analysis -> core), problem2 and the tests are
+laid out by ``ruff format`` alone, and the default update is the autograd one that a reader
+finds in ``trainer.td_loss``."""
 
 from __future__ import annotations
 
 import ast
+import re
+import tokenize
 from pathlib import Path
 
 import pytest
 import torch
 
-from tests.conftest import PROBLEM2, load_problem_module
+from tests.conftest import PROBLEM2, ROOT, load_problem_module
 
 train = load_problem_module("problem2", "train")
 SUBFOLDERS = ("analysis", "studies")
@@ -73,14 +75,30 @@ def test_train_py_needs_only_the_core() -> None:
     assert all(path.parent == PROBLEM2 for path in closure.values())
 
 
-# Root modules laid out by ``ruff format`` alone, with no formatter escape.
-ROOT_MODULES = sorted(path.name for path in PROBLEM2.glob("*.py"))
+def formatter_escapes(path: Path) -> list[int]:
+    """Lines of ``path`` with a comment that turns ``ruff format`` off (fmt: skip / off)."""
+    with path.open(encoding="utf-8") as source:
+        return [
+            token.start[0]
+            for token in tokenize.generate_tokens(source.readline)
+            if token.type == tokenize.COMMENT and re.search(r"fmt:\s*(skip|off)\b", token.string)
+        ]
 
 
-@pytest.mark.parametrize("name", ROOT_MODULES)
-def test_core_module_has_no_formatter_escape(name: str) -> None:
-    text = (PROBLEM2 / name).read_text(encoding="utf-8")
-    assert "# fmt: skip" not in text and "# fmt: off" not in text
+def test_the_escape_checker_reads_comments_not_strings(tmp_path: Path) -> None:
+    sample = tmp_path / "sample.py"
+    sample.write_text('x = [1,  2]  # fmt: skip\ntext = "# fmt: off"\n# fmt: off\n', "utf-8")
+    assert formatter_escapes(sample) == [1, 3]
+
+
+def test_problem2_and_tests_are_laid_out_by_the_formatter_alone() -> None:
+    """No formatter escape anywhere in problem2/ (core, analysis, studies) or tests/."""
+    files = sorted([*PROBLEM2.rglob("*.py"), *(ROOT / "tests").rglob("*.py")])
+    assert len(files) > 50 and PROBLEM2 / "trainer.py" in files
+    escapes = [
+        f"{path.relative_to(ROOT)}:{line}" for path in files for line in formatter_escapes(path)
+    ]
+    assert escapes == []
 
 
 def test_every_default_update_runs_backward(tmp_path: Path, monkeypatch) -> None:

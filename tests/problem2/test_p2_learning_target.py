@@ -25,10 +25,19 @@ def trained(output_dir: Path, **settings: object) -> train.MultiAgentTrainer:
     """A trainer that has collected a little experience (no updates unless asked), writing
     its models and log into ``output_dir`` (never the committed results)."""
     cfg = TrainConfig(
-        **{"mode": "independent", "total_steps": 640, "num_envs": 64, "batch_size": 32,
-           "learning_starts": 10**9, "eval_interval": 10**9, "eval_episodes": 4,
-           "keep_best": False, "output_dir": str(output_dir)} | settings,
-    )  # fmt: skip
+        **{
+            "mode": "independent",
+            "total_steps": 640,
+            "num_envs": 64,
+            "batch_size": 32,
+            "learning_starts": 10**9,
+            "eval_interval": 10**9,
+            "eval_episodes": 4,
+            "keep_best": False,
+            "output_dir": str(output_dir),
+        }
+        | settings,
+    )
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
     trainer.train()
     return trainer
@@ -130,9 +139,15 @@ def test_alpha_rises_linearly_over_the_ramp_then_stays(tmp_path: Path) -> None:
 
 def test_keep_best_saves_the_last_weights_beside_the_selected_ones(tmp_path: Path) -> None:
     cfg = TrainConfig(
-        mode="full", total_steps=2048, num_envs=16, learning_starts=256, batch_size=32,
-        eval_interval=512, eval_episodes=16, output_dir=str(tmp_path),
-    )  # fmt: skip
+        mode="full",
+        total_steps=2048,
+        num_envs=16,
+        learning_starts=256,
+        batch_size=32,
+        eval_interval=512,
+        eval_episodes=16,
+        output_dir=str(tmp_path),
+    )
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
     trainer.train()
     last = load_policy(tmp_path / "agent_models" / "last_weights" / "full_seed641_agent_A.pt")

@@ -104,8 +104,10 @@ def test_coverage_counts_cells_seen_for_the_first_time() -> None:
     env = VectorMultiAgentEnv(1, grids=grid[None], track_coverage=True, auto_reset=False)
     env.reset(positions=np.array([[[0, 0], [0, 4]]]))
     right, stay, left = 3, 4, 2
-    newly = [env.step(np.array([[a, stay]]), np.zeros((1, 2)))[4]["newly_seen"][0]
-             for a in (right, stay, left, right, right)]  # fmt: skip
+    newly = [
+        env.step(np.array([[a, stay]]), np.zeros((1, 2)))[4]["newly_seen"][0]
+        for a in (right, stay, left, right, right)
+    ]
     # A's view at (0, 0) and B's at (0, 4) cover columns 0-1 and 3-4 of rows 0-1; moving to
     # (0, 1) shows column 2 of both rows; after that every cell of rows 0-1 has been seen.
     assert newly == [2, 0, 0, 0, 0]
@@ -127,10 +129,18 @@ def test_pools_are_deterministic_distinct_and_disjoint_from_the_test_maps() -> N
 # ---------------------------------------------------------------------- trainer
 def pool_trainer(tmp_path: Path, **settings) -> MultiAgentTrainer:
     cfg = TrainConfig(
-        mode="full", seed=3, total_steps=10**9, num_envs=16, batch_size=32, learning_starts=32,
-        buffer_size=4096, map_pool=50, validation_maps=10, output_dir=str(tmp_path),
+        mode="full",
+        seed=3,
+        total_steps=10**9,
+        num_envs=16,
+        batch_size=32,
+        learning_starts=32,
+        buffer_size=4096,
+        map_pool=50,
+        validation_maps=10,
+        output_dir=str(tmp_path),
         **{"target_potential": 0.0} | settings,  # the study's recipe: no arrival term
-    ).validate()  # fmt: skip
+    ).validate()
     return MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
 
 
@@ -198,19 +208,35 @@ def test_shaping_adds_the_bonuses_only_to_what_is_learned(tmp_path: Path) -> Non
 
 # ---------------------------------------------------------------------- the study
 def tiny_study_config(**settings) -> TrainConfig:
-    return TrainConfig(**map_pool_study.RECIPE | dict(
-        total_steps=1024, num_envs=16, batch_size=32, learning_starts=256, buffer_size=2048,
-        eval_interval=512, eval_episodes=16, map_pool=30, validation_maps=8, seeds=[0],
-        workers=1, max_steps=12,
-    ) | settings).validate()  # fmt: skip
+    tiny = dict(
+        total_steps=1024,
+        num_envs=16,
+        batch_size=32,
+        learning_starts=256,
+        buffer_size=2048,
+        eval_interval=512,
+        eval_episodes=16,
+        map_pool=30,
+        validation_maps=8,
+        seeds=[0],
+        workers=1,
+        max_steps=12,
+    )
+    return TrainConfig(**map_pool_study.RECIPE | tiny | settings).validate()
 
 
 def test_tiny_study_end_to_end_and_reproducible(tmp_path: Path) -> None:
     out = tmp_path / "study"
     results = map_pool_study.run_study(tiny_study_config(), episodes=4, output_dir=out)
     files = sorted(p.name for p in out.iterdir())
-    assert files == ["agent_models", "map_pool.csv", "map_pool.json", "map_pool.png",
-                     "timing.json", "training_logs"]  # fmt: skip
+    assert files == [
+        "agent_models",
+        "map_pool.csv",
+        "map_pool.json",
+        "map_pool.png",
+        "timing.json",
+        "training_logs",
+    ]
     assert not any(p.name.startswith(".") for p in tmp_path.iterdir())  # no staging left
     saved = json.loads((out / "map_pool.json").read_text(encoding="utf-8"))
     assert saved == json.loads(json.dumps(results))

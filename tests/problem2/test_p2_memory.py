@@ -95,11 +95,25 @@ def test_memory_policy_resets_the_state_at_every_episode_start() -> None:
 
 def small_trainer(tmp_path: Path, mode: str, **settings: object) -> RecurrentTrainer:
     cfg = TrainConfig(
-        **{"total_steps": 2_000, "num_envs": 8, "batch_size": 64, "learning_starts": 400,
-           "eval_interval": 1_000, "eval_episodes": 8, "hidden_dim": 16, "n_step": 3,
-           "gamma": 0.9, "map_pool": 20, "validation_maps": 4, "share_weights": True,
-           "potential_credit": "team", "output_dir": str(tmp_path), "seed": 5} | settings,
-    ).validate()  # fmt: skip
+        **{
+            "total_steps": 2_000,
+            "num_envs": 8,
+            "batch_size": 64,
+            "learning_starts": 400,
+            "eval_interval": 1_000,
+            "eval_episodes": 8,
+            "hidden_dim": 16,
+            "n_step": 3,
+            "gamma": 0.9,
+            "map_pool": 20,
+            "validation_maps": 4,
+            "share_weights": True,
+            "potential_credit": "team",
+            "output_dir": str(tmp_path),
+            "seed": 5,
+        }
+        | settings,
+    ).validate()
     return RecurrentTrainer(MultiAgentEnv(max_steps=12), cfg, mode)
 
 

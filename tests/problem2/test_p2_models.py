@@ -177,9 +177,12 @@ def test_importing_models_sets_mkl_reproducibility_before_the_first_product() ->
     def run(setup: str, env: dict[str, str]) -> str:
         code = PRODUCT.format(setup="import os\n" + setup)
         result = subprocess.run(
-            [sys.executable, "-c", code, problem2], env=env, capture_output=True, text=True,
+            [sys.executable, "-c", code, problem2],
+            env=env,
+            capture_output=True,
+            text=True,
             check=True,
-        )  # fmt: skip
+        )
         return result.stdout.strip()
 
     by_import = run("import models", clean)

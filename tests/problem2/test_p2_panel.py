@@ -154,12 +154,12 @@ def test_the_makefile_trains_the_maps_of_the_rule() -> None:
     assert tuple(int(m) for m in maps) == PANEL_MAP_SEEDS == (641, *range(11))
 
 
-TINY_PANEL = [
-    "--mode", "independent,full", "--num_seeds", "1", "--total_steps", "1536",
-    "--num_envs", "16", "--learning_starts", "512", "--batch_size", "32",
-    "--eval_interval", "512", "--eval_episodes", "16", "--final_eval_episodes", "32",
-    "--buffer_size", "4096", "--workers", "1",
-]  # fmt: skip
+TINY_PANEL_FLAGS = (
+    "--mode independent,full --num_seeds 1 --total_steps 1536 --num_envs 16 --learning_starts 512 "
+    "--batch_size 32 --eval_interval 512 --eval_episodes 16 --final_eval_episodes 32 "
+    "--buffer_size 4096 --workers 1"
+)
+TINY_PANEL = TINY_PANEL_FLAGS.split()
 OUTPUTS = ("panel.json", "panel.csv", "panel_effects.png", "timing.json")
 
 
@@ -169,10 +169,19 @@ def tiny_panel(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("panel")
     for map_seed in (641, 4):
         subprocess.run(
-            [sys.executable, "train.py", *TINY_PANEL, "--map_seed", str(map_seed),
-             "--output_dir", str(root / f"map{map_seed}")],
-            cwd=PROBLEM2, check=True, capture_output=True,
-        )  # fmt: skip
+            [
+                sys.executable,
+                "train.py",
+                *TINY_PANEL,
+                "--map_seed",
+                str(map_seed),
+                "--output_dir",
+                str(root / f"map{map_seed}"),
+            ],
+            cwd=PROBLEM2,
+            check=True,
+            capture_output=True,
+        )
     return root
 
 

@@ -27,10 +27,21 @@ pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.\\w+` is deprecated:D
 def skeleton_args(**changes: object) -> argparse.Namespace:
     """Exactly the flags of the course skeleton's train.py."""
     flags = dict(
-        grid_size=[10, 10], max_steps=50, num_episodes=4, batch_size=32, lr=1e-3, gamma=0.99,
-        epsilon_start=1.0, epsilon_end=0.05, epsilon_decay=0.995, hidden_dim=64,
-        target_update=100, mode="full", seed=641, save_freq=100,
-    )  # fmt: skip
+        grid_size=[10, 10],
+        max_steps=50,
+        num_episodes=4,
+        batch_size=32,
+        lr=1e-3,
+        gamma=0.99,
+        epsilon_start=1.0,
+        epsilon_end=0.05,
+        epsilon_decay=0.995,
+        hidden_dim=64,
+        target_update=100,
+        mode="full",
+        seed=641,
+        save_freq=100,
+    )
     return argparse.Namespace(**(flags | changes))
 
 
@@ -60,9 +71,15 @@ def test_skeleton_namespace_trains_full_and_decays_epsilon_per_episode(
 
 def test_linear_epsilon_over_epsilon_fraction(tmp_path: Path) -> None:
     cfg = TrainConfig(
-        mode="comm", total_steps=6400, num_envs=64, epsilon_fraction=0.25, learning_starts=10**9,
-        eval_interval=10**9, eval_episodes=4, output_dir=str(tmp_path),
-    )  # fmt: skip
+        mode="comm",
+        total_steps=6400,
+        num_envs=64,
+        epsilon_fraction=0.25,
+        learning_starts=10**9,
+        eval_interval=10**9,
+        eval_episodes=4,
+        output_dir=str(tmp_path),
+    )
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
     trainer.env_steps = 800  # half of the first quarter
     assert trainer.next_epsilon(0) == pytest.approx(1.0 - 0.5 * 0.95)
@@ -80,9 +97,17 @@ def push_by_hand(trainer: train.MultiAgentTrainer, count: int, rng: np.random.Ge
     for _ in range(count):
         state_a, state_b, next_a, next_b = rng.random((4, 11), dtype=np.float32)
         trainer.replay_buffer.push(
-            state_a, state_b, int(rng.integers(5)), int(rng.integers(5)), rng.random(),
-            rng.random(), -0.1, next_a, next_b, False,
-        )  # fmt: skip
+            state_a,
+            state_b,
+            int(rng.integers(5)),
+            int(rng.integers(5)),
+            rng.random(),
+            rng.random(),
+            -0.1,
+            next_a,
+            next_b,
+            False,
+        )
 
 
 def assert_hard_copy_after(trainer: train.MultiAgentTrainer, period: int) -> None:
@@ -99,9 +124,16 @@ def assert_hard_copy_after(trainer: train.MultiAgentTrainer, period: int) -> Non
 def filled_trainer(**settings: object) -> train.MultiAgentTrainer:
     """A full-mode trainer whose buffer holds more than a batch, with no update yet."""
     cfg = TrainConfig(
-        mode="full", total_steps=640, num_envs=64, batch_size=32, learning_starts=10**9,
-        eval_interval=10**9, eval_episodes=4, keep_best=False, **settings,
-    )  # fmt: skip
+        mode="full",
+        total_steps=640,
+        num_envs=64,
+        batch_size=32,
+        learning_starts=10**9,
+        eval_interval=10**9,
+        eval_episodes=4,
+        keep_best=False,
+        **settings,
+    )
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
     trainer.train()
     return trainer
@@ -136,9 +168,12 @@ def test_no_target_update_while_the_buffer_holds_less_than_a_batch(
     tmp_path: Path, target_update: int, prioritized: bool
 ) -> None:
     cfg = TrainConfig(
-        mode="full", batch_size=32, target_update=target_update, prioritized=prioritized,
+        mode="full",
+        batch_size=32,
+        target_update=target_update,
+        prioritized=prioritized,
         output_dir=str(tmp_path),
-    )  # fmt: skip
+    )
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
     with torch.no_grad():
         for parameter in trainer.target.parameters():  # a target unlike the online networks
@@ -166,9 +201,15 @@ def test_transitions_pushed_by_hand_train_in_every_mode(mode: str) -> None:
 def test_any_odd_window_and_grid(tmp_path: Path, window: int, grid: tuple[int, int]) -> None:
     env = MultiAgentEnv(grid_size=grid, obs_window=window, seed=3)
     cfg = TrainConfig(
-        mode="full", total_steps=1024, num_envs=16, learning_starts=256, batch_size=32,
-        eval_interval=512, eval_episodes=8, output_dir=str(tmp_path),
-    )  # fmt: skip
+        mode="full",
+        total_steps=1024,
+        num_envs=16,
+        learning_starts=256,
+        batch_size=32,
+        eval_interval=512,
+        eval_episodes=8,
+        output_dir=str(tmp_path),
+    )
     trainer = train.MultiAgentTrainer(env, cfg)
     trainer.train()
     obs_dim = window**2 + 2
@@ -191,9 +232,16 @@ def test_any_odd_window_and_grid(tmp_path: Path, window: int, grid: tuple[int, i
 
 def test_train_writes_models_and_appends_the_log_as_it_goes(tmp_path: Path) -> None:
     cfg = TrainConfig(
-        mode="comm", seed=5, total_steps=1536, num_envs=16, learning_starts=512, batch_size=32,
-        eval_interval=512, eval_episodes=8, output_dir=str(tmp_path / "out"),
-    )  # fmt: skip
+        mode="comm",
+        seed=5,
+        total_steps=1536,
+        num_envs=16,
+        learning_starts=512,
+        batch_size=32,
+        eval_interval=512,
+        eval_episodes=8,
+        output_dir=str(tmp_path / "out"),
+    )
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
     seen_rows = []
 
@@ -215,9 +263,16 @@ def test_training_ends_with_the_checkpoint_that_select_by_picks_from_the_log(
     tmp_path: Path, select_by: str
 ) -> None:
     cfg = TrainConfig(
-        mode="full", total_steps=2048, num_envs=16, learning_starts=256, batch_size=32,
-        eval_interval=512, eval_episodes=16, select_by=select_by, output_dir=str(tmp_path),
-    )  # fmt: skip
+        mode="full",
+        total_steps=2048,
+        num_envs=16,
+        learning_starts=256,
+        batch_size=32,
+        eval_interval=512,
+        eval_episodes=16,
+        select_by=select_by,
+        output_dir=str(tmp_path),
+    )
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
     log = trainer.train()
 
@@ -232,8 +287,9 @@ def test_training_ends_with_the_checkpoint_that_select_by_picks_from_the_log(
     best = log[select_best([(summary(r, "greedy"), summary(r, "eps")) for r in log], select_by)]
     assert best_env_steps(trainer) == best["env_steps"]
     assert best_selection(trainer) == {
-        "greedy": best["eval_success_greedy"], "eps": best["eval_success_eps"]
-    }  # fmt: skip
+        "greedy": best["eval_success_greedy"],
+        "eps": best["eval_success_eps"],
+    }
     # The weights the run ends with are that checkpoint's: they replay its validation result.
     again = trainer.evaluation_summary(cfg.eval_episodes, 0.0, VALIDATION_SEED)
     assert again["success_rate"] == best["eval_success_greedy"]

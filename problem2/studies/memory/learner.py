@@ -307,8 +307,14 @@ class RecurrentTrainer(MultiAgentTrainer):
         q_online, _, _ = self.online.unroll(obs, previous)  # (T + 1, 2E, 5)
         if levers.listening > 0 and self.mode in ("comm", "full"):  # act on what is heard
             mean_message = obs[..., index][valid].mean().detach()
-            plain = torch.cat([obs[..., :index], torch.full_like(obs[..., index : index + 1],
-                               float(mean_message)), obs[..., index + 1 :]], -1)  # fmt: skip
+            plain = torch.cat(
+                [
+                    obs[..., :index],
+                    torch.full_like(obs[..., index : index + 1], float(mean_message)),
+                    obs[..., index + 1 :],
+                ],
+                -1,
+            )
             q_plain, _, _ = self.online.unroll(plain, previous)
             change = (q_online.softmax(-1) - q_plain.softmax(-1)).abs().sum(-1)[valid]
             extra = extra - levers.listening * change.mean()
