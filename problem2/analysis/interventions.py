@@ -39,7 +39,8 @@ INTERVENTIONS = {
 }
 CHANNEL_INTERVENTIONS = {
     "message": tuple(INTERVENTIONS),
-    "distance": ("real", "same_step", "constant_mean"),
+    # every probe that keeps the distance in its range: content, clock and presence
+    "distance": ("real", "same_step", "random_step", "shuffled_time", "constant_mean"),
 }
 CHANNEL_MODES = {"message": ("comm", "full"), "distance": ("distance", "full")}
 
