@@ -225,6 +225,19 @@ def run_study(
     return results
 
 
+def resummarise(cfg: TrainConfig, episodes: int, output_dir: Path) -> dict:
+    """The study's summary from the runs its memory.json records (what ``run_study`` feeds
+    ``summarise``, less the wall times) and the current map-pool results: what a rerun
+    writes when training gives the same runs, without the 30 minutes of training."""
+    recorded = json.loads((output_dir / "memory.json").read_text(encoding="utf-8"))
+    runs = list(recorded["runs"].values())
+    no_memory = read_no_memory()
+    results = summarise(cfg, runs, beacon_homing(episodes, cfg.max_steps), no_memory)
+    write_json_atomic(output_dir / "memory.json", results)
+    plot(output_dir / "memory.png", results, no_memory)
+    return results
+
+
 def format_table(results: dict) -> str:
     lines = [f"{'held-out success':<14} {'greedy (95% CI)':>22} {'eps 0.05 (95% CI)':>22}"]
     for mode, entry in results["held_out"]["modes"].items():
@@ -282,9 +295,17 @@ def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]
         action="store_true",
         help="only redraw memory.png from the memory.json in --output_dir (no training)",
     )
+    add(
+        "--summarise_only",
+        "--summarise-only",
+        action="store_true",
+        help="rewrite memory.json and memory.png from the runs memory.json records (their "
+        "test results) and the current map-pool results (no training)",
+    )
     args = parser.parse_args(argv)
-    if args.plot_only and not (args.output_dir / "memory.json").is_file():
-        parser.error(f"--plot_only: {args.output_dir / 'memory.json'} does not exist")
+    for flag in ("plot_only", "summarise_only"):
+        if getattr(args, flag) and not (args.output_dir / "memory.json").is_file():
+            parser.error(f"--{flag}: {args.output_dir / 'memory.json'} does not exist")
     modes = list(MEMORY_MODES) if args.mode == "all" else args.mode.split(",")
     unknown = [m for m in modes if m not in MEMORY_MODES]
     if unknown:
@@ -312,7 +333,10 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"wrote {args.output_dir / 'memory.png'}")
         return results
     start = time.perf_counter()
-    results = run_study(cfg, args.modes, args.seeds, args.episodes_per_map, args.output_dir)
+    if args.summarise_only:
+        results = resummarise(cfg, args.episodes_per_map, args.output_dir)
+    else:
+        results = run_study(cfg, args.modes, args.seeds, args.episodes_per_map, args.output_dir)
     print(format_table(results))
     print(f"wrote {args.output_dir} ({time.perf_counter() - start:.0f} s)")
     return results
