@@ -4,6 +4,7 @@ episodes are stored whole, and the sequence TD target is the n-step Double-DQN t
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -330,3 +331,18 @@ def test_memory_cic_is_zero_for_a_deaf_receiver_and_near_0_89_bits_for_a_followe
     # Messages 0 and 1 about equally often; at eps 0.05 the follower's two policies put 0.96
     # on one move each: CIC = 0.96 log2(0.96 / 0.485) + 0.01 log2(0.01 / 0.485) = 0.890 bits.
     assert heard == pytest.approx({"K2": 0.890, "K10": 0.890}, abs=0.01)
+
+
+def test_summarise_only_rewrites_what_the_run_wrote(tmp_path: Path) -> None:
+    """Re-summarising from the runs memory.json records gives the bytes the run wrote."""
+    from studies.memory import study
+
+    flags = ["--total_steps", "1200", "--num_seeds", "1", "--mode", "comm", "--workers", "1"]
+    flags += ["--episodes_per_map", "2", "--output_dir", str(tmp_path)]
+    study.main(flags)
+    written = (tmp_path / "memory.json").read_bytes()
+    (tmp_path / "memory.json").write_text(
+        json.dumps(json.loads(written) | {"held_out": {}}), encoding="utf-8"
+    )  # a summary that no longer matches its runs
+    study.main([*flags, "--summarise_only"])
+    assert (tmp_path / "memory.json").read_bytes() == written
