@@ -56,7 +56,7 @@ p2-evaluate: $(RUNTIME_STAMP)
 ## DP), messages without DIAL, then their evaluation, and the map panel (it evaluates itself).
 studies: p2-main p2-studies p2-evaluate p2-panel
 
-## Beyond the default task (about 63 min on 2 cores): agents on a pool of generated maps, the stability
+## Beyond the default task (about 69 min on 2 cores): agents on a pool of generated maps, the stability
 ## study, agents with memory and the levers tried on them (each writes its own results;
 ## `make p2-evaluate` reads only the main experiment and `make studies`' batches).
 beyond: p2-map-pool p2-stability p2-memory p2-memory-levers
@@ -72,7 +72,7 @@ p2-studies: $(RUNTIME_STAMP)
 ## Where does information enable coordination? The map panel: the assignment's map (641) and
 ## the generator's map seeds 0-10 (studies/panel.py: PANEL_MAP_SEEDS), the main experiment's
 ## recipe, 4 modes (independent, comm, distance, full) x training seeds 641-645 on each map;
-## then the panel's evaluation (about 30 min on 2 cores).
+## then the panel's evaluation and the longer run on its hardest map (37 min on 2 cores).
 PANEL_MAPS := 641 0 1 2 3 4 5 6 7 8 9 10
 p2-panel: $(RUNTIME_STAMP)
 	cd problem2 && for map in $(PANEL_MAPS); do \
