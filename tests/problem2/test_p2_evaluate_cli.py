@@ -216,6 +216,8 @@ def test_interventions_measures_and_decomposition_are_written(
     assert set(modes["full"]["distance"]["greedy"]["success"]) == {
         "real",
         "same_step",
+        "random_step",
+        "shuffled_time",
         "constant_mean",
     }
     measures = json.loads((output / "communication_measures.json").read_text(encoding="utf-8"))
