@@ -29,6 +29,7 @@ OPTIONAL_INPUTS = {
     "memory-study": "problem2/results/studies/memory/memory.json",
     "memory-levers": "problem2/results/studies/memory_levers/levers.json",
     "panel-study": "problem2/results/studies/panel/panel.json",
+    "panel-long": "problem2/results/studies/panel/long/panel_long.json",
 }
 
 
