@@ -29,6 +29,7 @@ OPTIONAL_INPUTS = {
     "memory-study": "problem2/results/studies/memory/memory.json",
     "memory-levers": "problem2/results/studies/memory_levers/levers.json",
     "panel-study": "problem2/results/studies/panel/panel.json",
+    "panel-long": "problem2/results/studies/panel/long/panel_long.json",
 }
 
 
@@ -46,8 +47,11 @@ def typst_options(name: str = "", email: str = "", root: Path = ROOT) -> dict:
     """Keyword arguments shared by ``typst.compile`` and ``typst.query`` for this report
     (the main file comes first, positionally). Typst's embedded fonts only, so the output does
     not depend on the fonts installed on the machine."""
-    return {"root": str(root), "sys_inputs": sys_inputs(name, email, root),
-            "ignore_system_fonts": True}  # fmt: skip
+    return {
+        "root": str(root),
+        "sys_inputs": sys_inputs(name, email, root),
+        "ignore_system_fonts": True,
+    }
 
 
 def build(output: Path, name: str = "", email: str = "", root: Path = ROOT) -> None:
@@ -61,8 +65,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--name", default="", help="your full name for the cover (default: blank)")
     parser.add_argument("--email", default="", help="your USC email for the cover (default: blank)")
-    parser.add_argument("--output", type=Path, default=ROOT / "report.pdf",
-                        help="PDF to write (default: report.pdf in the repository)")  # fmt: skip
+    parser.add_argument(
+        "--output",
+        type=Path,
+        default=ROOT / "report.pdf",
+        help="PDF to write (default: report.pdf in the repository)",
+    )
     args = parser.parse_args(argv)
     for flag in ("name", "email"):
         if "\n" in getattr(args, flag):

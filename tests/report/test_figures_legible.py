@@ -107,6 +107,7 @@ def draw_evaluation(out: Path) -> None:
 def draw_studies(out: Path) -> None:
     from studies import map_pool_study
     from studies.memory import study as memory_study
+    from studies.panel_outputs import plot_effects
     from studies.reward_study_outputs import plot_study
 
     studies = P2_RESULTS / "studies"
@@ -114,6 +115,9 @@ def draw_studies(out: Path) -> None:
     pool = read_json(studies / "map_pool" / "map_pool.json")
     map_pool_study.plot(out / "map_pool.png", pool)
     memory_study.plot(out / "memory.png", read_json(studies / "memory" / "memory.json"), pool)
+    panel = studies / "panel" / "panel.json"
+    if panel.is_file():  # the report places the panel's figure only when the panel has run
+        plot_effects(out / "panel_effects.png", read_json(panel))
 
 
 def printed_sizes(figure: Figure, tight: bool, placed: float) -> tuple[float, int]:

@@ -94,3 +94,20 @@ def test_the_reward_study_section_is_typeset_from_its_results_file() -> None:
         typst.query(str(ROOT / build.MAIN), "<reward-figure>", **build.typst_options())
     )
     assert len(found) == 1
+
+
+def page_of(label: str) -> int:
+    """The physical page on which the document's metadata ``label`` stands."""
+    found = json.loads(typst.query(str(ROOT / build.MAIN), f"<{label}>", **build.typst_options()))
+    assert len(found) == 1, f"one {label} marker expected"
+    return found[0]["value"]
+
+
+def test_the_main_part_holds_problem_1_and_2_in_at_most_12_pages() -> None:
+    start, end = page_of("main-start"), page_of("main-end")
+    assert start == 3  # after the cover with the answer and the contents page
+    assert end - start + 1 <= 12
+
+
+def test_the_answer_to_the_question_ends_on_the_first_page() -> None:
+    assert page_of("answer-end") == 1
