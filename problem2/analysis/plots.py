@@ -152,9 +152,10 @@ def waiting_steps(trace: EpisodeTrace, target: tuple[int, int]) -> np.ndarray:
     return (on & ~on[:, ::-1]).sum(axis=0)
 
 
-def draw_waiting(ax: Axes, trace: EpisodeTrace, target: tuple[int, int]) -> str:
+def draw_waiting(ax: Axes, trace: EpisodeTrace, target: tuple[int, int]) -> list[str]:
     """A ring in the waiting agent's colour around the target for each agent that waits
-    there for its partner; returns the words for the title ("B waits 9 steps")."""
+    there for its partner; returns the words for the title, one per agent that waits
+    ("B waits 9 steps")."""
     words = []
     for agent, steps in enumerate(waiting_steps(trace, target)):
         if steps > 0:
@@ -171,7 +172,7 @@ def draw_waiting(ax: Axes, trace: EpisodeTrace, target: tuple[int, int]) -> str:
                 label=f"{name} waits on the target",
             )
             words.append(f"{name} waits {steps} step{'s' if steps != 1 else ''}")
-    return ", ".join(words)
+    return words
 
 
 def draw_paths(ax: Axes, trace: EpisodeTrace, marker_scale: float = 1.0) -> None:
@@ -265,7 +266,7 @@ def _draw_trajectories(
             waits = draw_waiting(ax, trace, target)
             steps = f"{trace.length} step{'s' if trace.length != 1 else ''}"
             outcome = f"success in {steps}" if trace.success else "failure"
-            details = [w for w in (trace.description, waits) if w]  # the kind, who waits
+            details = [w for w in (trace.description, *waits) if w]  # the kind, who waits
             if compact:  # one short line each: the titles of neighbouring panels stay apart
                 short = f"success, {steps}" if trace.success else "failure"
                 ax.set_title("\n".join([short, *details]), fontsize=MIN_FONT)
