@@ -104,11 +104,11 @@ def plot_effects(path: Path, results: dict[str, Any]) -> None:
             effect = entry["effects"]["eps"][name]
             assignment = entry["map_seed"] == ASSIGNMENT_MAP
             colour = "#c0392b" if assignment else "#2c5d8f"
-            low, high = effect["ci95"]
+            mean, (low, high) = 100 * effect["mean"], (100 * v for v in effect["ci95"])  # points
             ax.errorbar(
                 position,
-                effect["mean"],
-                [[effect["mean"] - low], [high - effect["mean"]]],
+                mean,
+                [[mean - low], [high - mean]],
                 fmt="o" if assignment else "s",
                 ms=4.5,
                 color=colour,
@@ -118,7 +118,7 @@ def plot_effects(path: Path, results: dict[str, Any]) -> None:
             )
             ax.annotate(
                 str(entry["map_seed"]),
-                (position, effect["mean"]),
+                (position, mean),
                 xytext=(3, 2),
                 textcoords="offset points",
                 fontsize=FONT,
@@ -135,7 +135,7 @@ def plot_effects(path: Path, results: dict[str, Any]) -> None:
     for ax in axes[2:]:
         ax.set_xlabel(f"{prop.replace('_', ' ')} (cells)", fontsize=FONT + 1)
     for ax in axes[::2]:
-        ax.set_ylabel("success difference at ε = 0.05", fontsize=FONT + 1)
+        ax.set_ylabel("success difference (points, ε = 0.05)", fontsize=FONT + 1)
     handles = [
         axes[0].errorbar([], [], [], fmt="s", color="#2c5d8f", ms=4.5, label=label, mfc=face)
         for label, face in (("interval excludes 0", "#2c5d8f"), ("interval includes 0", "white"))
