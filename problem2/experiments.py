@@ -134,7 +134,13 @@ def read_csv(path: Path) -> list[dict[str, float]]:
 
 
 def train_one(
-    cfg: TrainConfig, mode: str, seed: int, models_dir: Path, logs_dir: Path, progress: Any = None
+    cfg: TrainConfig,
+    mode: str,
+    seed: int,
+    models_dir: Path,
+    logs_dir: Path,
+    trainer_class: type[MultiAgentTrainer] = MultiAgentTrainer,
+    progress: Any = None,
 ) -> dict[str, Any]:
     """Train one (mode, seed) into ``models_dir`` / ``logs_dir``, run its selection evaluation
     (greedy and ε = 0.05 on ``cfg.final_eval_episodes`` validation episodes: what picks the
@@ -151,7 +157,7 @@ def train_one(
         seed=cfg.map_seed,
         reward_mode=cfg.reward_mode,
     )
-    trainer = MultiAgentTrainer(env, run_cfg)
+    trainer = trainer_class(env, run_cfg)
     # train() appends each log row to its CSV file as it is measured and saves the models.
     trainer.models_dir, trainer.logs_dir = models_dir, logs_dir
     name = run_name(mode, seed)
@@ -173,9 +179,12 @@ def train_one(
 
 
 # ------------------------------------------------------------------------------ the batch
-def run_experiments(cfg: TrainConfig) -> list[dict[str, Any]]:
+def run_experiments(
+    cfg: TrainConfig, trainer_class: type[MultiAgentTrainer] = MultiAgentTrainer
+) -> list[dict[str, Any]]:
     """Train every (mode, seed) of ``cfg`` in ``cfg.workers`` processes into a staging
-    folder, then install it into ``cfg.output_dir`` (whole or not at all).
+    folder, then install it into ``cfg.output_dir`` (whole or not at all). Each run is a
+    ``trainer_class`` (a study may pass a subclass of the learner).
 
     On KeyboardInterrupt the staging folder becomes ``<output_dir>/interrupted/`` (its CSV
     rows are what was measured) and the error is re-raised; on any other error it is
@@ -195,7 +204,11 @@ def run_experiments(cfg: TrainConfig) -> list[dict[str, Any]]:
         logs_dir.mkdir()
         save_map(models_dir / "map.json", generate_map(cfg.grid_shape(), cfg.map_seed))
         write_json_atomic(models_dir / "hyperparameters.json", cfg.hyperparameters())
-        jobs = [(cfg, m, s, models_dir, logs_dir) for m in cfg.run_modes() for s in cfg.run_seeds()]
+        jobs = [
+            (cfg, m, s, models_dir, logs_dir, trainer_class)
+            for m in cfg.run_modes()
+            for s in cfg.run_seeds()
+        ]
         finals = run_jobs(train_one, jobs, cfg.workers, ProgressLine(len(jobs), cfg.total_steps))
         write_batch_records(cfg, finals, models_dir, logs_dir)
         install(staging, root)

@@ -232,11 +232,17 @@ def export_policy(
     for name, child in list(exported.named_children()):
         if isinstance(child, nn.Linear):
             setattr(exported, name, _ExportLinear(child))
+    return save_scripted(MaskedPolicy(exported, mask_tensor), path)
+
+
+def save_scripted(module: nn.Module, path: str | Path) -> Path:
+    """Script ``module`` and save it atomically, the same weights giving the same bytes
+    anywhere (:func:`_without_debug_sources`). Returns the path written."""
     # Saving to memory first keeps the archive's inner folder name fixed ("archive", not the
     # temporary file's name), so the same weights always give byte-identical files.
     buffer = io.BytesIO()
     with _torchscript_without_deprecation_warnings():
-        torch.jit.save(torch.jit.script(MaskedPolicy(exported, mask_tensor)), buffer)
+        torch.jit.save(torch.jit.script(module), buffer)
     with temporary_path_for(path) as temporary:
         temporary.write_bytes(_without_debug_sources(buffer.getvalue()))
     return Path(path)

@@ -122,7 +122,7 @@ class MultiAgentTrainer(CourseSkeletonAPI):
 
         self.rollout = self.start_rollout(cfg.num_envs, self.seed)
         self.obs_dim = self.rollout.env.obs_dim
-        self.mask = torch.tensor(observation_mask(self.mode, self.obs_dim))
+        self.mask = self.input_mask()  # (D,)
         self.message_column = torch.arange(self.obs_dim) == self.obs_dim - 2  # (D,) element w²
         self.online = PairedQNetworks(self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, cfg.dueling)
         self.target = PairedQNetworks(self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, cfg.dueling)
@@ -203,6 +203,11 @@ class MultiAgentTrainer(CourseSkeletonAPI):
             reward_mode=cfg.reward_mode,
             **maps,
         )
+
+    def input_mask(self) -> torch.Tensor:
+        """The (D,) multiplicative mask of the network's input (the mode's observation mask;
+        an agent whose input holds more than the observation may hide more)."""
+        return torch.tensor(observation_mask(self.mode, self.obs_dim))
 
     def start_rollout(self, n_envs: int, seed: int | None) -> Rollout:
         return Rollout.start(self.make_vector_env(n_envs, seed), self.cfg.n_step, self.cfg.gamma)
