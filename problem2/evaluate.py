@@ -44,7 +44,8 @@ from analysis.runs import (
     model_paths,
     resolve_checkpoint,
 )
-from batch_io import make_console_safe
+from batch.plumbing import make_console_safe
+from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON
 
@@ -139,6 +140,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     A missing, damaged or unlisted model file ends the run (exit status 1) naming it,
     before anything is written: the manifest's checksums are checked when the experiments
     are found, and each pair is loaded and checked where it is evaluated."""
+    use_reproducible_matmul()  # before the first matrix product
     make_console_safe()
     args = parse_args(argv)
     torch.set_num_threads(1)  # batches of ~1000 rows: one thread is fast and leaves cores free

@@ -1,4 +1,4 @@
-"""Maps of the two-agent grid world: cell codes, moves, generation, validation, JSON files.
+"""Maps of the two-agent grid world: cell codes, moves, generation and validation.
 
 A map is an int64 array (H, W): 0 free, 1 obstacle, 2 the single target. Every free cell
 must be able to reach the target.
@@ -6,11 +6,7 @@ must be able to reach the target.
 
 from __future__ import annotations
 
-from functools import lru_cache
-from pathlib import Path
-
 import numpy as np
-from batch_io import write_json_atomic
 
 FREE, OBSTACLE, TARGET, OFF_GRID = 0, 1, 2, -1
 ACTION_NAMES = ("Up", "Down", "Left", "Right", "Stay")
@@ -129,86 +125,22 @@ def generate_map(grid_size: tuple[int, int] = (10, 10), seed: int | None = None)
     )
 
 
-def save_map(path: str | Path, grid: np.ndarray) -> None:
-    """Write a validated map to ``path`` as JSON ``{"grid": [[...], ...]}`` (atomically)."""
-    write_json_atomic(path, {"grid": check_grid(grid).tolist()})
-
-
-# ------------------------------------------------------------------ pools of generated maps
-# For agents that must not memorise one map. Three disjoint ranges of map seeds: training
-# maps TRAINING_FIRST_SEED + i (a new one drawn at each episode start), validation maps
-# VALIDATION_FIRST_SEED + i (checkpoint selection), and the held-out test maps
-# HELD_OUT_MAP_SEEDS, on which no setting or checkpoint is chosen (analysis/held_out.py tests
-# on them). A pool also drops any generated map that equals a held-out map or the default
-# map cell for cell, so "disjoint" holds for the maps, not only the seeds.
-HELD_OUT_MAP_SEEDS = tuple(range(1000, 1040))  # also the evaluator's held-out maps
-TRAINING_FIRST_SEED = 100_000
-VALIDATION_FIRST_SEED = 200_000
-MAX_POOL_SIZE = VALIDATION_FIRST_SEED - TRAINING_FIRST_SEED  # the ranges never overlap
-
-
-@lru_cache(maxsize=8)
-def _pool(first_seed: int, size: int, grid_size: tuple[int, int]) -> np.ndarray:
-    if not isinstance(size, int) or not 1 <= size <= MAX_POOL_SIZE:
-        raise ValueError(f"a map pool holds 1..{MAX_POOL_SIZE} maps, got {size!r}")
-    seeds = (*HELD_OUT_MAP_SEEDS, DEFAULT_MAP_SEED)
-    excluded = {generate_map(grid_size, seed).tobytes() for seed in seeds}
-    maps, seed = [], first_seed
-    while len(maps) < size:
-        grid = generate_map(grid_size, seed)
-        if grid.tobytes() not in excluded:
-            maps.append(grid)
-        seed += 1
-    pool = np.stack(maps)
-    pool.flags.writeable = False
-    return pool
-
-
-def training_maps(size: int, grid_size: tuple[int, int] = (10, 10)) -> np.ndarray:
-    """The first ``size`` training maps (size, H, W) int64 (read-only, cached)."""
-    return _pool(TRAINING_FIRST_SEED, size, tuple(grid_size))
-
-
-def validation_maps(size: int, grid_size: tuple[int, int] = (10, 10)) -> np.ndarray:
-    """The first ``size`` validation maps (size, H, W) int64 (read-only, cached)."""
-    return _pool(VALIDATION_FIRST_SEED, size, tuple(grid_size))
-
-
 # ------------------------------------------------ checks of what callers hand the env
-def is_integer(value: object) -> bool:
-    return isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
-
-
-def positive_int(value: object, name: str) -> int:
-    if not is_integer(value) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
-def check_seed(seed: object, name: str = "seed") -> int | None:
-    """``None`` or a non-negative integer (what NumPy's generators accept)."""
-    if seed is not None and (not is_integer(seed) or seed < 0):
-        raise ValueError(f"{name} must be None or a non-negative integer, got {seed!r}")
-    return None if seed is None else int(seed)
-
-
 def choose_maps(
     n_envs: int,
     grid_size: tuple[int, int],
     seed: int | None,
     grid: np.ndarray | None,
     grids: np.ndarray | None,
-    map_pool: np.ndarray | None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """The maps (M, H, W) the copies play and, if M = 1, that map (H, W), else None: the
-    checked ``grid``, ``grids`` (one map per copy) or ``map_pool`` (at most one of them), or
-    with none the map generated from ``seed`` at ``grid_size``."""
-    if sum(option is not None for option in (grid, grids, map_pool)) > 1:
-        raise ValueError("give at most one of grid, grids and map_pool")
-    if grids is not None or map_pool is not None:
-        stacked = grids if grids is not None else map_pool
-        all_maps = check_grid_stack(stacked, "grids" if grids is not None else "map_pool")
-        if grids is not None and len(all_maps) != n_envs:
+    checked ``grid``, or ``grids`` (one map per copy; not both), or with neither the map
+    generated from ``seed`` at ``grid_size``."""
+    if grid is not None and grids is not None:
+        raise ValueError("give grid or grids, not both")
+    if grids is not None:
+        all_maps = check_grid_stack(grids, "grids")
+        if len(all_maps) != n_envs:
             raise ValueError(f"grids must hold n_envs = {n_envs} maps, got {len(grids)}")
         return all_maps, all_maps[0] if len(all_maps) == 1 else None  # else: map_indices
     one_map = generate_map(grid_size, seed) if grid is None else check_grid(grid)

@@ -2,7 +2,7 @@
 observation masks of the ablations, and TorchScript export of a network with its mask.
 
 Both networks follow the assignment's formula with one hidden layer:
-    h = ReLU(W1 x + b1),   Q = W_q h + b_q  (or the dueling form),   m = sigmoid(w_m·h + b_m)
+    h = ReLU(W1 x + b1),   Q = W_q h + b_q  (or DuelingDQN's form),   m = sigmoid(w_m·h + b_m)
 """
 
 from __future__ import annotations
@@ -19,15 +19,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from batch_io import temporary_path_for
-from grid_maps import positive_int
+from settings import positive_int
 from torch import nn
-
-# MKL's conditional numerical reproducibility: matrix products take MKL's AVX2 code path on
-# every x86 CPU with AVX2 (Intel or AMD, AVX-512 or not), so a seed trains the same bytes on
-# any of them. It takes effect at the process's first matrix product, which every entry
-# point makes after importing this module; a value set by the user is kept.
-os.environ.setdefault("MKL_CBWR", "AVX2")
 
 OBSERVATION_DIM = 11  # the default 3 x 3 window: 9 cells, message, distance
 MESSAGE_INDEX = 9  # the partner's last message (w² for a w x w window)
@@ -57,6 +50,15 @@ def observation_mask(mode: str, obs_dim: int = OBSERVATION_DIM) -> np.ndarray:
 
 
 OBSERVATION_MASKS = {mode: observation_mask(mode) for mode in MASKED_INPUTS}  # (11,) each
+
+
+def use_reproducible_matmul() -> None:
+    """Make matrix products take MKL's AVX2 code path on every x86 CPU with AVX2 (Intel or
+    AMD, AVX-512 or not; MKL's conditional numerical reproducibility), so a seed trains the
+    same bytes on any of them. Every entry point calls it first: it takes effect at the
+    process's first matrix product, and worker processes inherit it. A value set by the user
+    is kept."""
+    os.environ.setdefault("MKL_CBWR", "AVX2")
 
 
 class MessagingQNetwork(nn.Module):
@@ -135,10 +137,14 @@ class PairedQNetworks(nn.Module):
     """
 
     def __init__(
-        self, input_dim: int = 11, hidden_dim: int = 64, num_actions: int = 5, dueling: bool = False
+        self,
+        input_dim: int = 11,
+        hidden_dim: int = 64,
+        num_actions: int = 5,
+        network_class: type[MessagingQNetwork] = AgentDQN,
     ) -> None:
         super().__init__()
-        self.network_class = DuelingDQN if dueling else AgentDQN
+        self.network_class = network_class
         self.sizes = (input_dim, hidden_dim, num_actions)
         # The initial weights are two interface networks' (PyTorch's nn.Linear default).
         agents = [self.network_class(*self.sizes) for _ in "AB"]
@@ -243,9 +249,16 @@ def save_scripted(module: nn.Module, path: str | Path) -> Path:
     buffer = io.BytesIO()
     with _torchscript_without_deprecation_warnings():
         torch.jit.save(torch.jit.script(module), buffer)
-    with temporary_path_for(path) as temporary:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # Written under a temporary name, then renamed: an interrupted save leaves no half file.
+    temporary = path.with_name(f".{path.name}.tmp.{os.getpid()}")
+    try:
         temporary.write_bytes(_without_debug_sources(buffer.getvalue()))
-    return Path(path)
+        os.replace(temporary, path)
+    finally:
+        temporary.unlink(missing_ok=True)
+    return path
 
 
 def _without_debug_sources(archive: bytes) -> bytes:

@@ -1,249 +1,16 @@
 """Experience replay for the two agents' joint transitions (s_A, s_B, a_A, a_B, c_A, c_B, r,
-s'_A, s'_B, done), plus any extras the learner stores with them (the trainer: previous
-observations for DIAL, the n-step discount, the observations one step before s').
-``ReplayBuffer`` samples uniformly, ``PrioritizedReplayBuffer`` by priority^alpha.
+s'_A, s'_B, done): the course's file. ``ReplayBuffer`` (uniform, the one the trainer uses) is
+``replay.py``'s; ``PrioritizedReplayBuffer`` samples by priority^alpha (course interface; no
+training run uses it).
 """
 
 from __future__ import annotations
 
-import numbers
-
 import numpy as np
-from grid_maps import NUM_ACTIONS
+from replay import TRANSITION_FIELDS, ReplayBuffer
+from settings import positive_int
 
-TRANSITION_FIELDS = (
-    "state_A",
-    "state_B",
-    "action_A",
-    "action_B",
-    "comm_A",
-    "comm_B",
-    "reward",
-    "next_state_A",
-    "next_state_B",
-    "done",
-)
-STATE_FIELDS = ("state_A", "state_B", "next_state_A", "next_state_B")
-# Column order of a row: these observation pairs side by side (A then B), then the rest.
-PAIRED_FIELDS = (
-    "state_A",
-    "state_B",
-    "next_state_A",
-    "next_state_B",
-    "prev_state_A",
-    "prev_state_B",
-    "last_state_A",
-    "last_state_B",
-)
-_INTEGER_FIELDS = ("action_A", "action_B")  # stored as int64; the other required: float32
-
-
-def _positive_int(value: int, name: str) -> int:
-    number = isinstance(value, numbers.Real) and not isinstance(value, bool)
-    if not (number and 1 <= value == int(value)):
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
-def _as_array(name: str, value: object) -> np.ndarray:
-    """``value`` as an array; a tensor that requires grad is refused by name."""
-    if type(value) is np.ndarray:  # the common case, nothing to convert or check
-        return value
-    if getattr(value, "requires_grad", False):
-        raise ValueError(
-            f"{name} is a tensor that requires grad; store a plain number (.item() or .detach())"
-        )
-    try:
-        return np.asarray(value)
-    except (TypeError, ValueError, RuntimeError) as error:
-        raise ValueError(f"{name} is not an array of numbers: {error}") from error
-
-
-def check_transitions(arrays: dict[str, np.ndarray]) -> None:
-    """Refuse B transitions whose required fields are malformed, naming the field: states
-    not (B, D) finite with one D for all four, actions not integers in 0..NUM_ACTIONS-1,
-    messages outside [0, 1], rewards not finite, done not boolean (bool or 0/1)."""
-    states = [arrays[name] for name in STATE_FIELDS]
-    for name, value in zip(STATE_FIELDS, states, strict=True):
-        if value.ndim != 2 or value.shape[1] == 0 or value.shape[1:] != states[0].shape[1:]:
-            raise ValueError(
-                f"{name} must be one observation vector per transition with the size of "
-                f"state_A {states[0].shape[1:]}, got per-transition shape {value.shape[1:]}"
-            )
-        if not np.issubdtype(value.dtype, np.number) or not np.isfinite(value).all():
-            raise ValueError(f"{name} must hold finite numbers")
-    for name in TRANSITION_FIELDS:
-        if name not in STATE_FIELDS and arrays[name].ndim != 1:
-            raise ValueError(
-                f"{name} must be one number per transition, got per-transition shape "
-                f"{arrays[name].shape[1:]}"
-            )
-    for name in _INTEGER_FIELDS:
-        value = arrays[name]
-        numeric = np.issubdtype(value.dtype, np.number) and value.dtype != np.bool_
-        if not (numeric and np.all(np.mod(value, 1) == 0)):
-            raise ValueError(f"{name} must be integer actions, got {value[:5].tolist()}")
-        if value.min() < 0 or value.max() >= NUM_ACTIONS:
-            raise ValueError(f"{name} must lie in 0..{NUM_ACTIONS - 1}, got {value[:5].tolist()}")
-    for name in ("comm_A", "comm_B"):
-        value = arrays[name]
-        if not np.issubdtype(value.dtype, np.number) or not ((value >= 0) & (value <= 1)).all():
-            raise ValueError(f"{name} must be a message in [0, 1], got {value[:5].tolist()}")
-    reward = arrays["reward"]
-    if not np.issubdtype(reward.dtype, np.number) or not np.isfinite(reward).all():
-        raise ValueError(f"reward must be a finite number, got {reward[:5].tolist()}")
-    done = arrays["done"]
-    if done.dtype != np.bool_ and not (
-        np.issubdtype(done.dtype, np.number) and np.isin(done, (0, 1)).all()
-    ):
-        raise ValueError(f"done must be boolean (True/False or 0/1), got {done[:5].tolist()}")
-
-
-class ReplayBuffer:
-    """Uniform replay over the last ``capacity`` joint transitions; ``seed`` seeds sampling.
-
-    One float32 ring (capacity, row width): a transition is a row, a field a block of its
-    columns (:attr:`layout`; A's and B's observations side by side, so a learner can view both
-    as one (2, B, D) block). The first push fixes the fields and their shapes. One way in,
-    :meth:`push_batch`; one way to draw, :meth:`sample_rows`; :meth:`unpack` turns rows back
-    into fields. The course's :meth:`push` and :meth:`sample` are built on them.
-    """
-
-    def __init__(self, capacity: int = 10000, seed: int | None = None) -> None:
-        self.capacity = _positive_int(capacity, "capacity")
-        self._rng = np.random.default_rng(seed)
-        self._rows = np.zeros((0, 0), np.float32)  # (capacity, row width) after the first push
-        self._shapes: dict[str, tuple[int, ...]] = {}  # each field's per-transition shape
-        self.layout: dict[str, slice] = {}  # each field's columns in a row
-        self._size = 0
-        self._next_slot = 0
-
-    def __len__(self) -> int:
-        return self._size
-
-    @property
-    def field_names(self) -> tuple[str, ...]:
-        """The ten required fields, then the extras (empty before the first push)."""
-        return tuple(self._shapes)
-
-    def push(
-        self,
-        state_A,
-        state_B,
-        action_A,
-        action_B,
-        comm_A,
-        comm_B,
-        reward,
-        next_state_A,
-        next_state_B,
-        done,
-        **extras,
-    ) -> None:
-        """Store one transition: states (obs_dim,), the rest scalars; ``extras`` likewise
-        one transition's worth each."""
-        arguments = locals()  # the ten required fields, by name
-        fields = {name: arguments[name] for name in TRANSITION_FIELDS} | extras
-        self.push_batch(**{name: _as_array(name, value)[None] for name, value in fields.items()})
-
-    def push_batch(self, *, validate: bool = True, **arrays: np.ndarray) -> np.ndarray:
-        """Store B transitions: the ten required fields and any extras as keywords, each
-        with leading dimension B (states (B, obs_dim), actions (B,), ...). If B exceeds the
-        capacity only the last ``capacity`` are kept. Returns the slots written (B',) int64.
-        ``validate=False`` skips :func:`check_transitions` (for a trainer that pushes what
-        the environment returned, already checked there)."""
-        missing = [name for name in TRANSITION_FIELDS if name not in arrays]
-        if missing:
-            raise ValueError(f"push_batch is missing required fields {missing}")
-        arrays = {name: _as_array(name, value) for name, value in arrays.items()}
-        lengths = {value.shape[0] if value.ndim else 0 for value in arrays.values()}
-        if len(lengths) != 1 or 0 in lengths:
-            raise ValueError(
-                "every field needs the same non-zero leading (batch) dimension; "
-                f"got shapes { {name: a.shape for name, a in arrays.items()} }"
-            )
-        if validate:
-            check_transitions(arrays)
-        if not self._shapes:
-            self._allocate({name: value.shape[1:] for name, value in arrays.items()})
-        if set(arrays) != set(self._shapes):
-            raise ValueError(
-                f"fields {sorted(arrays)} differ from those of the first push "
-                f"{sorted(self._shapes)}"
-            )
-        for name, value in arrays.items():
-            if value.shape[1:] != self._shapes[name]:
-                raise ValueError(
-                    f"{name} has per-transition shape {value.shape[1:]}, the "
-                    f"buffer holds {self._shapes[name]}"
-                )
-        batch_size = min(lengths.pop(), self.capacity)
-        slots = (self._next_slot + np.arange(batch_size)) % self.capacity
-        end = self._next_slot + batch_size
-        rows = slice(self._next_slot, end) if end <= self.capacity else slots  # no wrap: faster
-        for name, value in arrays.items():
-            self._rows[rows, self.layout[name]] = value[-batch_size:].reshape(batch_size, -1)
-        self._next_slot = int(slots[-1] + 1) % self.capacity
-        self._size = min(self._size + batch_size, self.capacity)
-        self._stored(slots)
-        return slots
-
-    def _stored(self, slots: np.ndarray) -> None:
-        """Called with the slots of every push (prioritised replay sets their priority)."""
-
-    def _allocate(self, shapes: dict[str, tuple[int, ...]]) -> None:
-        """Fix the fields by their per-transition ``shapes`` and their columns."""
-        extras = sorted(set(shapes) - set(TRANSITION_FIELDS))
-        self._shapes = {name: shapes[name] for name in (*TRANSITION_FIELDS, *extras)}
-        columns = [name for name in PAIRED_FIELDS if name in shapes]
-        columns += [name for name in self._shapes if name not in PAIRED_FIELDS]
-        width = 0
-        for name in columns:
-            size = int(np.prod(shapes[name], dtype=np.int64))
-            self.layout[name] = slice(width, width + size)
-            width += size
-        self._rows = np.zeros((self.capacity, width), np.float32)
-
-    def _draw_indices(self, batch_size: int) -> np.ndarray:
-        return self._rng.integers(self._size, size=batch_size)
-
-    def _weights(self, indices: np.ndarray) -> np.ndarray:
-        """Importance weights (B,) float32 of a drawn sample: all 1 for uniform replay."""
-        return np.ones(len(indices), dtype=np.float32)
-
-    def sample_rows(
-        self, batch_size: int, out: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Draw ``batch_size`` slots (with replacement) and gather their whole rows (into ``out``
-        (batch_size, row width) float32 if given): (rows, weights (B,) float32, slots (B,))."""
-        batch_size = _positive_int(batch_size, "batch_size")
-        if batch_size > self._size:
-            raise ValueError(
-                f"cannot sample {batch_size} transitions: the buffer holds {self._size}"
-            )
-        indices = self._draw_indices(batch_size)
-        rows = np.take(self._rows, indices, axis=0, out=out, mode="clip")  # valid: faster
-        return rows, self._weights(indices), indices
-
-    def unpack(self, rows: np.ndarray) -> dict[str, np.ndarray]:
-        """The fields (required and extras) of packed ``rows`` (B, row width), as copies:
-        actions int64, everything else float32."""
-        return {
-            name: rows[:, self.layout[name]]
-            .reshape(len(rows), *shape)
-            .astype(np.int64 if name in _INTEGER_FIELDS else np.float32)
-            for name, shape in self._shapes.items()
-        }
-
-    def get(self, indices: np.ndarray) -> dict[str, np.ndarray]:
-        """Every field at slots ``indices`` (B,), as in :meth:`unpack`."""
-        return self.unpack(self._rows[indices])
-
-    def sample(self, batch_size: int) -> tuple[np.ndarray, ...]:
-        """Uniform sample with replacement: the ten required arrays in interface order,
-        states (B, obs_dim) float32, actions (B,) int64, the rest (B,) float32."""
-        batch = self.unpack(self.sample_rows(batch_size)[0])
-        return tuple(batch[name] for name in TRANSITION_FIELDS)
+__all__ = ["TRANSITION_FIELDS", "PrioritizedReplayBuffer", "ReplayBuffer", "SumTree"]
 
 
 class SumTree:
@@ -309,7 +76,7 @@ class PrioritizedReplayBuffer(ReplayBuffer):
             raise ValueError(f"beta_start must be in [0, 1], got {beta_start!r}")
         self.alpha = float(alpha)
         self.beta_start = float(beta_start)
-        self.beta_steps = _positive_int(beta_steps, "beta_steps")
+        self.beta_steps = positive_int(beta_steps, "beta_steps")
         self._tree = SumTree(self.capacity)
         self._max_priority = 1.0
         self._samples_drawn = 0
@@ -330,6 +97,7 @@ class PrioritizedReplayBuffer(ReplayBuffer):
         return np.minimum(self._tree.find(prefix_sums), self._size - 1)
 
     def _weights(self, indices: np.ndarray) -> np.ndarray:
+        """Importance weights (B,) float32 of a drawn sample, divided by their maximum."""
         probabilities = self._tree.values(indices) / self._tree.total
         weights = (self._size * probabilities) ** -self.beta
         self._samples_drawn += 1
@@ -338,9 +106,8 @@ class PrioritizedReplayBuffer(ReplayBuffer):
     def sample(self, batch_size: int) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray]:
         """(the ten required arrays as in ReplayBuffer.sample, weights (B,) float32,
         slots (B,) int64 to pass back to :meth:`update_priorities`)."""
-        rows, weights, indices = self.sample_rows(batch_size)
-        batch = self.unpack(rows)
-        return tuple(batch[name] for name in TRANSITION_FIELDS), weights, indices
+        indices = self.sample_indices(batch_size)
+        return self.fields_at(indices), self._weights(indices), indices
 
     def update_priorities(self, indices: np.ndarray, priorities: np.ndarray) -> None:
         """Set the priorities (B,) of slots ``indices`` (B,), e.g. |TD error| + 1e-6.

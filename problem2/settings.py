@@ -1,18 +1,20 @@
-"""How a setting is declared and checked, for ``train_config.TrainConfig`` and the studies'
-own flags: :func:`setting` declares a dataclass field once (default, help, allowed range);
-a check maps a value to None (allowed) or to the problem, phrased with the allowed range
-("must be an integer >= 1"); :class:`SettingError` carries every problem found, each naming
-its field (the flag ``--name``); :class:`ListAction` parses list flags."""
+"""How a value is checked, once for the whole of Problem 2: :func:`setting` declares a
+dataclass field of ``train_config.TrainConfig`` (default, help, allowed range); a check maps a
+value to None (allowed) or to the problem, phrased with the allowed range ("must be an integer
+>= 1"); :class:`SettingError` carries every problem found, each naming its field (the flag
+``--name``). :func:`is_integer`, :func:`positive_int` and :func:`check_seed` are the checks
+the environment, the networks and the replay buffer apply to their arguments."""
 
 from __future__ import annotations
 
-import argparse
 import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 Check = Callable[[Any], str | None]
 Problem = tuple[str, str, Any]  # (field name, what is wrong, the value)
@@ -49,15 +51,30 @@ def check_value(name: str, value: Any, check: Check) -> None:
         raise SettingError(name, problem, value)
 
 
-def is_int(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
+def is_integer(value: object) -> bool:
+    """A Python or NumPy integer, not a bool."""
+    return isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
+
+
+def positive_int(value: object, name: str) -> int:
+    """``value`` as an int if it is an integer >= 1; ValueError naming ``name`` otherwise."""
+    if not is_integer(value) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def check_seed(seed: object, name: str = "seed") -> int | None:
+    """``None`` or a non-negative integer (what NumPy's generators accept)."""
+    if seed is not None and (not is_integer(seed) or seed < 0):
+        raise ValueError(f"{name} must be None or a non-negative integer, got {seed!r}")
+    return None if seed is None else int(seed)
 
 
 def int_in(low: int, high: int | None = None) -> Check:
     allowed = f"an integer >= {low}" if high is None else f"an integer in {low}..{high}"
 
     def check(value: Any) -> str | None:
-        ok = is_int(value) and value >= low and (high is None or value <= high)
+        ok = is_integer(value) and value >= low and (high is None or value <= high)
         return None if ok else f"must be {allowed}"
 
     return check
@@ -116,7 +133,7 @@ def distinct_ints(low: int, high: int) -> Check:
     def check(value: Any) -> str | None:
         ok = (
             isinstance(value, (list, tuple))
-            and all(is_int(v) and low <= v <= high for v in value)
+            and all(is_integer(v) and low <= v <= high for v in value)
             and len(set(value)) == len(value)
         )
         return None if ok else f"must be distinct integers in {low}..{high}"
@@ -129,7 +146,7 @@ def one_or_two_ints(low: int, high: int) -> Check:
 
     def check(value: Any) -> str | None:
         values = value if isinstance(value, list) else [value]
-        ok = len(values) in (1, 2) and all(is_int(v) and low <= v <= high for v in values)
+        ok = len(values) in (1, 2) and all(is_integer(v) and low <= v <= high for v in values)
         return None if ok else f"must be one or two integers in {low}..{high}"
 
     return check
@@ -150,24 +167,3 @@ def setting(
     if isinstance(default, list):
         return field(default_factory=lambda: list(default), metadata=metadata)
     return field(default=default, metadata=metadata)
-
-
-class ListAction(argparse.Action):
-    """A list flag: values space- or comma-separated, each converted by ``item_type``."""
-
-    def __init__(self, *args: Any, item_type: Callable[[str], Any] = str, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.item_type = item_type
-
-    def __call__(self, parser, namespace, values, option_string=None) -> None:  # noqa: ANN001
-        items = []
-        for token in values if isinstance(values, list) else [values]:
-            for part in token.split(","):
-                if not part.strip():
-                    raise argparse.ArgumentError(self, f"empty item in {token!r}")
-                try:
-                    items.append(self.item_type(part.strip()))
-                except ValueError:
-                    name = getattr(self.item_type, "__name__", "value")
-                    raise argparse.ArgumentError(self, f"invalid {name} value: {part!r}") from None
-        setattr(namespace, self.dest, items)

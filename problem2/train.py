@@ -14,9 +14,11 @@ import gc
 import sys
 from typing import Any
 
-from batch_io import make_console_safe
-from experiments import INTERRUPTED, check_output_dir, output_root, run_experiments
-from train_config import TrainConfig, parse_config_or_exit
+from batch.cli import parse_config_or_exit
+from batch.experiments import INTERRUPTED, check_output_dir, output_root, run_experiments
+from batch.plumbing import make_console_safe
+from models import use_reproducible_matmul
+from train_config import TrainConfig
 from trainer import EVAL_EPSILON, MultiAgentTrainer, apply_observation_mask
 
 __all__ = ["EVAL_EPSILON", "MultiAgentTrainer", "TrainConfig", "apply_observation_mask", "main"]
@@ -25,6 +27,7 @@ __all__ = ["EVAL_EPSILON", "MultiAgentTrainer", "TrainConfig", "apply_observatio
 def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     """Train every requested mode and seed (in parallel) and write models, logs and curves.
     Every setting and the output folder are checked first (a usage error names the flag)."""
+    use_reproducible_matmul()  # before the first matrix product
     make_console_safe()
     cfg = parse_config_or_exit(argv, extra_check=check_output_dir)
     try:

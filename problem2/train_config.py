@@ -1,24 +1,22 @@
-"""Hyperparameters of Problem 2's training, in one dataclass that also builds the CLI: each
-field is declared once by ``settings.setting`` (default, help, allowed range) and gets a flag
-(``--num_episodes`` or ``--num-episodes``; list flags take ``--seeds 641 642`` or
-``--seeds 641,642``); every value is checked before any work starts.
+"""Hyperparameters of Problem 2's training, in one dataclass: each field is declared once by
+``settings.setting`` (default, help, allowed range), every value is checked before any work
+starts, and ``batch/cli.py`` builds one flag per field (``--num_episodes`` or
+``--num-episodes``). Study extensions add fields in a subclass (``studies/pool_training.py``).
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
 import os
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from grid_maps import MAX_POOL_SIZE, generate_map
+from grid_maps import generate_map
 from rollout import SELECT_BY
 from settings import (
-    ListAction,
     Problem,
     SettingError,
     boolean,
@@ -250,7 +248,7 @@ class TrainConfig:
         boolean,
     )
 
-    # ------------------------------------------------ study extensions beyond the DQN core
+    # ------------------------------------------------ the reward only learning sees
     target_potential: float = setting(
         4.0,
         "potential-based shaping for learning only (Ng et al. 1999), >= 0: adds gamma * "
@@ -264,37 +262,6 @@ class TrainConfig:
         "per agent; Devlin and Kudenko 2011) or team (both agents', one team value per step)",
         one_of("agent", "team"),
     )
-    map_pool: int = setting(
-        0,
-        "0: train on the --map_seed map; N > 0: on a pool of N generated maps (grid_maps.py), "
-        "a new one drawn at each episode start, evaluated on other generated maps "
-        "(map_pool_study.py)",
-        int_in(0, MAX_POOL_SIZE),
-    )
-    validation_maps: int = setting(
-        200,
-        "with --map_pool: generated validation maps of the periodic evaluations (1 or more)",
-        int_in(1, MAX_POOL_SIZE),
-    )
-    share_weights: bool = setting(
-        False,
-        "parameter sharing: both agents use one set of weights (same start, summed gradient), "
-        "a departure from the assignment's independent learners",
-        boolean,
-    )
-    coverage_bonus: float = setting(
-        0.0,
-        "reward shaping for learning only (>= 0): added per grid cell that enters either "
-        "agent's 3x3 view for the first time in the episode",
-        number_in(0.0, math.inf, high_open=True),
-    )
-    on_target_bonus: float = setting(
-        0.0,
-        "reward shaping for learning only (>= 0): added per agent standing on the target",
-        number_in(0.0, math.inf, high_open=True),
-    )
-    prioritized: bool = setting(False, "use proportional prioritised replay", boolean)
-    dueling: bool = setting(False, "use the dueling architecture Q = V + (A - mean A)", boolean)
 
     def __post_init__(self) -> None:
         # --grid_size 10 and --grid_size 10 10 (the skeleton's list) mean the same grid.
@@ -367,72 +334,3 @@ def check_setting(name: str, value: Any) -> None:
     """Raise :class:`SettingError` if ``value`` breaks TrainConfig field ``name``'s rule
     (checked alone, e.g. for a study's flag that is turned into other fields)."""
     check_value(name, value, TrainConfig.__dataclass_fields__[name].metadata["check"])
-
-
-# ------------------------------------------------------------------------------ the CLI
-OUTPUT_RULE = """\
-Outputs (in --output_dir): agent_models/ (TorchScript pairs, manifest.json, map.json,
-hyperparameters.json) and training_logs/ (one CSV per run, <run>_selection.json, curves,
-timing.json).
-
-A batch is written into a hidden staging folder inside --output_dir and moved into place
-only when every run has finished, so the folder holds one whole batch or the previous one.
-Into a folder that holds a batch with other settings (or model files without a manifest)
-training refuses unless --overwrite is given; a re-run with identical settings replaces
-it. Settings other than the defaults never go into the default folder without --overwrite
-(choose another --output_dir). Interrupted with Ctrl-C, the batch leaves the evaluation
-rows it measured in <output_dir>/interrupted/training_logs/ and the results untouched.
-Stale temporary files of killed runs are removed at the next start."""
-
-
-def build_parser(cls: type = TrainConfig) -> argparse.ArgumentParser:
-    """One flag per dataclass field, in both spellings, with the field's help and default."""
-    parser = argparse.ArgumentParser(
-        description="Train the two agents (Problem 2).",
-        epilog=OUTPUT_RULE,
-        formatter_class=argparse.RawDescriptionHelpFormatter,  # the epilog's paragraphs kept
-    )
-    for spec in dataclasses.fields(cls):
-        factory = spec.default_factory
-        default = spec.default if factory is dataclasses.MISSING else factory()
-        names = list(dict.fromkeys([f"--{spec.name}", f"--{spec.name.replace('_', '-')}"]))
-        options: dict[str, Any] = {"dest": spec.name, "default": default}
-        # The output folder's default is an absolute path of this machine: its help names it.
-        shown_default = "" if spec.name == "output_dir" else " (default: %(default)s)"
-        options["help"] = spec.metadata["help"] + shown_default
-        if isinstance(default, bool):
-            options["action"] = argparse.BooleanOptionalAction
-        elif spec.metadata["items"]:
-            item_type, options["metavar"] = spec.metadata["items"]
-            options |= {"nargs": "+", "action": ListAction, "item_type": item_type}
-        else:
-            options["type"] = type(default)
-        parser.add_argument(*names, **options)
-    return parser
-
-
-def parse_config(
-    argv: Sequence[str] | None = None, parser: argparse.ArgumentParser | None = None
-) -> TrainConfig:
-    """Parse and validate; bad values raise :class:`SettingError` (a ValueError)."""
-    values = vars((parser or build_parser()).parse_args(argv))
-    if isinstance(values.get("mode"), list):
-        values["mode"] = ",".join(values["mode"])
-    return TrainConfig(**values).validate()
-
-
-def parse_config_or_exit(
-    argv: Sequence[str] | None = None,
-    extra_check: Callable[[TrainConfig], None] | None = None,
-) -> TrainConfig:
-    """Parse and validate as the CLI does: bad values are an argparse usage error (exit 2)
-    naming, a line each, the flag, the value and the allowed range. ``extra_check`` (e.g.
-    the output folder rule) may raise SettingError too."""
-    parser = build_parser()
-    try:
-        cfg = parse_config(argv, parser)
-        if extra_check is not None:
-            extra_check(cfg)
-    except SettingError as error:
-        parser.error(error.usage())
-    return cfg

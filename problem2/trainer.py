@@ -10,7 +10,12 @@ wherever a network sees an observation: acting, both TD passes, the exported mod
 :meth:`MultiAgentTrainer.train` is the loop, in DQN order: act (ε-greedy) → step → store
 (:meth:`~MultiAgentTrainer.collect`) → update (:meth:`~MultiAgentTrainer.update_networks`:
 ``td_loss`` → ``backward()`` → clip → Adam → target sync) → schedules → evaluate and log.
-The course skeleton's methods are in ``course_skeleton.py``.
+The course skeleton's interface (``select_action``, ``train_episode``, ``evaluate``,
+``network_A`` / ``network_B``, a bare ``argparse.Namespace`` as ``args``) closes the class.
+Study extensions subclass it through its hooks (``vector_env_class`` and
+:meth:`~MultiAgentTrainer.make_vector_env`, :meth:`~MultiAgentTrainer.learning_rewards`,
+``network_class``, :meth:`~MultiAgentTrainer.input_mask`,
+:meth:`~MultiAgentTrainer.after_backward`, :meth:`~MultiAgentTrainer.save_models`).
 """
 
 from __future__ import annotations
@@ -19,17 +24,16 @@ import csv
 import math
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from course_skeleton import CourseSkeletonAPI, config_from
-from grid_maps import NUM_ACTIONS, TARGET, training_maps, validation_maps
-from models import PairedQNetworks, export_policy, observation_mask
-from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer
+from grid_maps import NUM_ACTIONS, TARGET
+from models import AgentDQN, PairedQNetworks, export_policy, observation_mask
+from replay import ReplayBuffer, TransitionBatch, sample_batch
 from rollout import (
     EVAL_EPSILON,
     EVAL_SEED,
@@ -39,8 +43,7 @@ from rollout import (
     evaluate_policy,
     select_best,
 )
-from train_config import TRAINABLE_MODES
-from transition_batch import BatchSampler, TransitionBatch
+from train_config import TRAINABLE_MODES, TrainConfig
 from vector_env import VectorMultiAgentEnv
 
 LAST_WEIGHTS = "last_weights"  # subfolder of agent_models/: each run's final weights (keep_best)
@@ -73,6 +76,22 @@ def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndar
     return np.asarray(obs, dtype=np.float32) * mask
 
 
+def config_from(args: Any) -> TrainConfig:
+    """A TrainConfig as given (validated by its maker: the CLI, ``run_experiments``), or
+    one built and validated from any namespace, e.g. the course skeleton's (``mode``
+    missing or ``all`` means ``full``; output under ``./results``; unknown attributes and
+    ``grid_size`` ignored: the map comes from the environment)."""
+    if isinstance(args, TrainConfig):
+        return args
+    known = {f.name for f in fields(TrainConfig)}
+    settings = {k: v for k, v in vars(args).items() if k in known and v is not None}
+    if settings.get("mode", "all") == "all":
+        settings["mode"] = "full"
+    settings.setdefault("output_dir", "results")  # like the skeleton
+    settings.pop("grid_size", None)  # the trainer trains on env's grid
+    return TrainConfig(**settings).validate()
+
+
 class MapSource(Protocol):
     """What the trainer reads of its environment (a ``MultiAgentEnv`` or a one-map
     ``VectorMultiAgentEnv``): the map (H, W), its size, the window and the time limit."""
@@ -94,7 +113,7 @@ class Checkpoint:
     state: dict[str, torch.Tensor]
 
 
-class MultiAgentTrainer(CourseSkeletonAPI):
+class MultiAgentTrainer:
     """Trains agents A and B of one ablation mode with one seed.
 
     Args:
@@ -124,22 +143,14 @@ class MultiAgentTrainer(CourseSkeletonAPI):
         self.obs_dim = self.rollout.env.obs_dim
         self.mask = self.input_mask()  # (D,)
         self.message_column = torch.arange(self.obs_dim) == self.obs_dim - 2  # (D,) element w²
-        self.online = PairedQNetworks(self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, cfg.dueling)
-        self.target = PairedQNetworks(self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, cfg.dueling)
-        if cfg.share_weights:  # one set of weights: B starts as a copy of A
-            self.online.load_agents([self.online.agent(0)] * 2)
+        sizes = (self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, self.network_class)
+        self.online, self.target = PairedQNetworks(*sizes), PairedQNetworks(*sizes)
         self.target.load_state_dict(self.online.state_dict())
         self.target.requires_grad_(False)
         self.target_parameters = list(self.target.parameters())
         self.online_parameters = list(self.online.parameters())  # both agents' weights
         self.optimizer = torch.optim.Adam(self.online_parameters, lr=cfg.lr, fused=True)
-        if cfg.prioritized:  # β reaches 1 at the run's last planned update
-            self.replay_buffer = PrioritizedReplayBuffer(
-                cfg.buffer_size, beta_steps=self.planned_updates(), seed=self.seed
-            )
-        else:
-            self.replay_buffer = ReplayBuffer(cfg.buffer_size, seed=self.seed)
-        self.sampler = BatchSampler(self.obs_dim, cfg.gamma)
+        self.replay_buffer = ReplayBuffer(cfg.buffer_size, seed=self.seed)
         # DIAL trains the message where the receiver sees it (comm, full).
         self.dial = cfg.comm_learning == "dial" and bool(self.mask[self.obs_dim - 2])
         self.epsilon = cfg.epsilon_start
@@ -181,27 +192,20 @@ class MultiAgentTrainer(CourseSkeletonAPI):
 
     # ------------------------------------------------------------------ the environments
     vector_env_class: type[VectorMultiAgentEnv] = VectorMultiAgentEnv  # a study may extend it
+    network_class: type[AgentDQN] = AgentDQN  # each agent's network
 
     def make_vector_env(
         self, n_envs: int, seed: int | None, validation: bool = False
     ) -> VectorMultiAgentEnv:
-        """``n_envs`` copies of the training map with the reward the trainer learns from;
-        with ``map_pool`` > 0, copies that draw from the training maps (tracking the cells
-        seen, for the coverage bonus) or, for ``validation``, from the validation maps."""
-        cfg, size = self.cfg, self.env.grid_size
-        maps: dict[str, Any] = {}
-        if cfg.map_pool > 0:
-            pool = validation_maps(cfg.validation_maps, size) if validation else None
-            maps = dict(map_pool=training_maps(cfg.map_pool, size) if pool is None else pool)
-            maps["track_coverage"] = not validation and cfg.coverage_bonus > 0
+        """``n_envs`` copies of the training map with the reward the trainer learns from
+        (``validation``: for the periodic evaluations; the same map here)."""
         return self.vector_env_class(
             n_envs,
-            grid=None if maps else self.env.grid,
+            grid=self.env.grid,
             obs_window=self.env.obs_window,
             max_steps=self.env.max_steps,
             seed=seed,
-            reward_mode=cfg.reward_mode,
-            **maps,
+            reward_mode=self.cfg.reward_mode,
         )
 
     def input_mask(self) -> torch.Tensor:
@@ -241,8 +245,7 @@ class MultiAgentTrainer(CourseSkeletonAPI):
         """The team rewards (N,) plus the terms only learning sees: with ``potential_credit``
         team, the arrival term γ Φ(s') − Φ(s), Φ = ``target_potential`` per agent on the
         target (``obs`` (N, 2, D) before the step; with ``agent`` :meth:`td_loss` adds each
-        agent's own); ``coverage_bonus`` per newly seen cell; ``on_target_bonus`` per agent on
-        the target. The arrival term pays +Φ per arrival and charges Φ per departure, so
+        agent's own). The arrival term pays +Φ per arrival and charges Φ per departure, so
         leaving and coming back earns nothing; being potential-based, it keeps the optimal
         policy of the goal reward."""
         cfg = self.cfg
@@ -250,10 +253,6 @@ class MultiAgentTrainer(CourseSkeletonAPI):
             before = self.on_target(obs).sum(axis=1)
             after = info["on_target"].sum(axis=1)
             rewards = rewards + cfg.target_potential * (cfg.gamma * after - before)
-        if cfg.on_target_bonus > 0:
-            rewards = rewards + cfg.on_target_bonus * info["on_target"].sum(axis=1)
-        if cfg.coverage_bonus > 0 and "newly_seen" in info:
-            rewards = rewards + cfg.coverage_bonus * info["newly_seen"]
         return rewards
 
     def on_target(self, obs: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
@@ -325,68 +324,64 @@ class MultiAgentTrainer(CourseSkeletonAPI):
         with ``target_update`` 0 a soft update θ⁻ ← θ⁻ + τ (θ − θ⁻), otherwise a hard copy
         every ``target_update`` updates. Returns the loss (0.0, and no update, while the
         buffer holds fewer than ``batch_size`` transitions)."""
-        cfg = self.cfg
         if len(self.replay_buffer) < batch_size:
             return 0.0
-        batch, slots = self.sample(batch_size)
-        loss, td_errors, q_taken = self.td_loss(batch)
+        batch = sample_batch(self.replay_buffer, batch_size, self.cfg.gamma)
+        loss, _, q_taken = self.td_loss(batch)
         self.optimizer.zero_grad()
         loss.backward()
-        if cfg.share_weights:  # one shared parameter: the sum of both agents' gradients
-            for p in self.online_parameters:  # each (2, ...), agent axis first
-                if p.grad is not None:  # None: a message head no loss reaches (independent)
-                    p.grad.copy_(p.grad.sum(dim=0, keepdim=True).expand_as(p.grad))
-        torch.nn.utils.clip_grad_norm_(self.online_parameters, cfg.max_grad_norm, foreach=True)
+        self.after_backward()
+        torch.nn.utils.clip_grad_norm_(self.online_parameters, self.cfg.max_grad_norm, foreach=True)
         self.optimizer.step()
         self.updates += 1
-        if cfg.prioritized:  # one priority per joint transition: the larger |δ| of the two
-            priorities = td_errors.abs().max(dim=0).values.numpy() + 1e-6
-            self.replay_buffer.update_priorities(slots, priorities)
         self.sync_target()
         loss_value = float(loss.detach())
         self._losses.append(loss_value)
         self._mean_qs.append(float(q_taken.mean()))
         return loss_value
 
-    def sample(self, batch_size: int) -> tuple[TransitionBatch, np.ndarray]:
-        """A batch from the replay buffer and the replay slots (B,) it came from."""
-        return self.sampler.sample(self.replay_buffer, batch_size)
+    def after_backward(self) -> None:
+        """Called between ``backward()`` and the gradient clipping (a study may change the
+        gradients here, e.g. to share weights)."""
 
     def td_loss(self, batch: TransitionBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The Huber TD loss, summed over both agents (the assignment's L = L_A + L_B).
+        """The Huber TD loss, summed over both agents (the assignment's L = L_A + L_B), on
+        ``batch`` (obs (2, B, D), actions (2, B), reward, discount (B,)):
 
-        y = R + d · Q_target(s', argmax_a Q_online(s', a))  (Double DQN), where R is the
-        discounted reward of k <= n steps and d = γ^k, 0 where both reached the target
-        (the only terminal: the time limit is a cut-off and is bootstrapped through);
-        with advantage learning y − α (max_b Q_target(s, b) − Q_target(s, a)), α from
-        :meth:`advantage_learning_alpha`. With ``potential_credit`` agent, each agent's R
-        also holds its own arrival term over the k steps, Φ (d · on(s') − on(s)): the sum of
-        γ^j (γ Φ(s_{j+1}) − Φ(s_j)) telescopes, and the terminal state's potential is 0.
-        Returns (loss with gradient, TD errors δ (2, B), Q(s, a) (2, B)), the last two
-        detached."""
+            y = R + d · Q_target(s', argmax_a Q_online(s', a))        (Double DQN)
+                − α (max_b Q_target(s, b) − Q_target(s, a))           (advantage learning)
+
+        R = r_t + γ r_{t+1} + ... + γ^(k-1) r_{t+k-1} is the k-step return (k <= n, fewer
+        where the episode ends first) and d = γ^k, 0 where both agents reached the target
+        (the only terminal: the time limit is a cut-off and is bootstrapped through); α
+        rises over the run (:meth:`advantage_learning_alpha`). Returns (loss with gradient,
+        TD errors δ (2, B), Q(s, a) (2, B)), the last two detached."""
         obs, next_obs = batch.obs * self.mask, batch.next_obs * self.mask
         if self.dial:
             obs, next_obs = self.splice_messages(batch, obs, next_obs)
-        alpha = self.advantage_learning_alpha()
+        alpha, n = self.advantage_learning_alpha(), obs.shape[1]
         with torch.no_grad():
             best_next = self.online(next_obs)[0].max(dim=-1, keepdim=True).indices
             # One target-network pass over s' and, for advantage learning, s: (2, B or 2B, 5).
             q_target = self.target(torch.cat([next_obs, obs], dim=1) if alpha > 0 else next_obs)[0]
-            next_value = q_target[:, : obs.shape[1]].gather(-1, best_next)[..., 0]
-            target = batch.reward + batch.discount * next_value
-            if self.cfg.target_potential > 0 and self.cfg.potential_credit == "agent":
-                on_now, on_next = (self.on_target(o).float() for o in (batch.obs, batch.next_obs))
-                target = target + self.cfg.target_potential * (batch.discount * on_next - on_now)
-            if alpha > 0:  # advantage learning: minus the action gap at s (target networks)
-                q_at_s = q_target[:, obs.shape[1] :]
+            next_value = q_target[:, :n].gather(-1, best_next)[..., 0]
+            target = batch.reward + batch.discount * next_value + self.own_arrival_term(batch)
+            if alpha > 0:
+                q_at_s = q_target[:, n:]
                 taken = q_at_s.gather(-1, batch.actions.unsqueeze(-1))[..., 0]
                 target = target - alpha * (q_at_s.max(dim=-1).values - taken)
         q_taken = self.online(obs)[0].gather(-1, batch.actions.unsqueeze(-1))[..., 0]
-        per_sample = F.smooth_l1_loss(q_taken, target, reduction="none")  # (2, B)
-        if self.cfg.prioritized:  # importance-sampling weights (all 1 without PER)
-            per_sample = per_sample * batch.weights
-        loss = per_sample.mean(dim=1).sum()
+        loss = F.smooth_l1_loss(q_taken, target, reduction="none").mean(dim=1).sum()
         return loss, (q_taken - target).detach(), q_taken.detach()
+
+    def own_arrival_term(self, batch: TransitionBatch) -> torch.Tensor | float:
+        """With ``potential_credit`` agent, each agent's own arrival term over the k steps,
+        Φ (d · on(s') − on(s)) (2, B): the sum of γ^j (γ Φ(s_{j+1}) − Φ(s_j)) telescopes,
+        and the terminal state's potential is 0. Otherwise 0."""
+        if self.cfg.target_potential == 0 or self.cfg.potential_credit != "agent":
+            return 0.0
+        on_now, on_next = (self.on_target(o).float() for o in (batch.obs, batch.next_obs))
+        return self.cfg.target_potential * (batch.discount * on_next - on_now)
 
     def splice_messages(
         self, batch: TransitionBatch, obs: torch.Tensor, next_obs: torch.Tensor
@@ -460,15 +455,6 @@ class MultiAgentTrainer(CourseSkeletonAPI):
         self.epsilon = self.next_epsilon(finished_episodes)
         for group in self.optimizer.param_groups:
             group["lr"] = self.learning_rate()
-
-    def planned_updates(self) -> int:
-        """Gradient updates the run will make with an env-step budget (prioritised replay's
-        β schedule); with an episode budget, as many as 100 000 samples."""
-        cfg = self.cfg
-        if cfg.num_episodes > 0:
-            return 100_000
-        vector_steps = max(1, (cfg.total_steps - cfg.learning_starts) // cfg.num_envs)
-        return vector_steps * cfg.updates_per_step
 
     # ------------------------------------------------------------------ 6. evaluate and log
     def evaluation_summary(
@@ -548,3 +534,49 @@ class MultiAgentTrainer(CourseSkeletonAPI):
             export_policy(self.online.agent(i), self.mode, folder / f"{self.name}_agent_{a}.pt")
             for i, a in enumerate("AB")
         ]
+
+    # ------------------------------------------------ the course skeleton's interface
+    _episode_rollout: Any = None  # the one-environment rollout of train_episode()
+
+    @property
+    def network_A(self) -> torch.nn.Module:
+        """Agent A's network as a standalone AgentDQN / DuelingDQN (a snapshot)."""
+        return self.online.agent(0)
+
+    @property
+    def network_B(self) -> torch.nn.Module:
+        return self.online.agent(1)
+
+    def select_action(
+        self, state: np.ndarray, network: torch.nn.Module, epsilon: float
+    ) -> tuple[int, float]:
+        """ε-greedy action and message of one agent: ``state`` (obs_dim,) raw observation."""
+        masked = torch.as_tensor(state, dtype=torch.float32) * self.mask
+        with torch.no_grad():
+            q_values, comm = network(masked.unsqueeze(0))
+        action = int(q_values.argmax(dim=1).item())
+        if self.rng.random() < epsilon:
+            action = int(self.rng.integers(NUM_ACTIONS))
+        return action, float(comm.item())
+
+    def train_episode(self) -> tuple[float, bool]:
+        """Play one episode in a single environment, learning as ``train`` does but with one
+        gradient update per env step (the skeleton's loop); returns (episode_reward, success)."""
+        if self._episode_rollout is None:
+            self._episode_rollout = self.start_rollout(1, self.seed + 1)
+        while True:
+            returns, successes, finished = self.collect(self._episode_rollout)
+            if self.env_steps >= self.cfg.learning_starts:
+                self.update_networks(self.cfg.batch_size)
+            self.update_schedules(int(finished.sum()))
+            if len(returns):
+                return float(returns[0]), bool(successes[0])
+
+    def evaluate(
+        self, num_episodes: int = 10, epsilon: float = 0.0, seed: int = EVAL_SEED
+    ) -> tuple[float, float]:
+        """(mean reward, success rate) over fixed episodes (the test episodes by default),
+        under the reward the trainer learns from (unshaped); on the validation maps when
+        training on a map pool."""
+        summary = self.evaluation_summary(num_episodes, epsilon, seed)
+        return summary["mean_return"], summary["success_rate"]

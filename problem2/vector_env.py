@@ -8,17 +8,8 @@ experience from 64 copies, the evaluator runs 1000 test episodes together);
 from __future__ import annotations
 
 import numpy as np
-from grid_maps import (
-    ACTION_DELTAS,
-    FREE,
-    OFF_GRID,
-    TARGET,
-    check_seed,
-    check_step,
-    choose_maps,
-    is_integer,
-    positive_int,
-)
+from grid_maps import ACTION_DELTAS, FREE, OFF_GRID, TARGET, check_step, choose_maps
+from settings import check_seed, is_integer, positive_int
 
 BOTH_ON_TARGET_REWARD = 10.0
 ARRIVAL_REWARD = 2.0
@@ -66,11 +57,12 @@ class VectorMultiAgentEnv:
     and used instead, its shape replacing ``grid_size``) and, through a separate stream
     spawned with ``np.random.SeedSequence``, the agents' start cells.
 
-    Several maps: ``grids`` (N, H, W) gives copy i map i for its lifetime; ``map_pool``
-    (M, H, W) makes every copy draw a map uniformly from the pool at each episode start
-    (from the same stream as the start cells, map first). The M maps' padded tables are
-    stacked, and a flat position indexes the stack (map m's cells are ``m * P .. m * P +
-    P - 1``, P padded cells per map), so a step costs what it costs with one map.
+    Several maps: ``grids`` (N, H, W) gives copy i map i for its lifetime. The M maps' padded
+    tables are stacked, and a flat position indexes the stack (map m's cells are ``m * P ..
+    m * P + P - 1``, P padded cells per map), so a step costs what it costs with one map.
+    A subclass may change maps between episodes (``studies/pool_training.py``): it overrides
+    :meth:`_choose_maps` and :meth:`_before_placement`, and sees each step's state before the
+    auto-reset in :meth:`_after_move`.
 
     One team reward per step, never a per-agent sum: :func:`team_rewards` of ``reward_mode``.
     Both agents on the target terminates the episode; ``truncated`` is set when ``max_steps``
@@ -88,8 +80,6 @@ class VectorMultiAgentEnv:
         grid: np.ndarray | None = None,
         auto_reset: bool = True,
         grids: np.ndarray | None = None,
-        map_pool: np.ndarray | None = None,
-        track_coverage: bool = False,
     ) -> None:
         self.n_envs = positive_int(n_envs, "n_envs")
         if not is_integer(obs_window) or obs_window < 3 or obs_window % 2 == 0:
@@ -101,9 +91,7 @@ class VectorMultiAgentEnv:
         self.reward_mode = reward_mode
         seed = check_seed(seed)
         self.auto_reset = bool(auto_reset)
-        self.track_coverage = bool(track_coverage)
-        self.grids, self.grid = choose_maps(self.n_envs, grid_size, seed, grid, grids, map_pool)
-        self._draw_maps = map_pool is not None
+        self.grids, self.grid = self._choose_maps(grid_size, seed, grid, grids)
         self.grid_size: tuple[int, int] = (int(self.grids.shape[1]), int(self.grids.shape[2]))
         self.obs_dim = self.obs_window**2 + 2
         self._rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
@@ -113,15 +101,22 @@ class VectorMultiAgentEnv:
             self._map_index = np.arange(self.n_envs)
         self._copy_base = self._map_index * self._cells_per_map  # first flat index of the map
         self._copy_target = self._target_flat[self._map_index]  # (N,) flat target cells
-        if self.track_coverage:
-            self._seen = np.zeros((self.n_envs, self._cells_per_map), dtype=bool)
-            self._seen_count = np.zeros(self.n_envs, dtype=np.int64)
         self._flat = np.zeros((self.n_envs, 2), dtype=np.int64)
         self._messages = np.zeros((self.n_envs, 2), dtype=np.float32)
         self._steps = np.zeros(self.n_envs, dtype=np.int64)
         self._visited = np.zeros((self.n_envs, 2), dtype=bool)  # reached the target yet
         self._finished = np.zeros(self.n_envs, dtype=bool)  # only set when not auto_reset
         self.reset()
+
+    def _choose_maps(
+        self,
+        grid_size: tuple[int, int],
+        seed: int | None,
+        grid: np.ndarray | None,
+        grids: np.ndarray | None,
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """The stack of maps (M, H, W) and the one map if M = 1 (:func:`grid_maps.choose_maps`)."""
+        return choose_maps(self.n_envs, grid_size, seed, grid, grids)
 
     def _build_lookup_tables(self) -> None:
         """Tables over the M stacked padded maps (flat index m * P + cell)."""
@@ -284,18 +279,18 @@ class VectorMultiAgentEnv:
         """Observations (N, 2, obs_dim) float32 of the current state."""
         return self._observe(self._flat, self._messages)
 
-    def _draw_maps_for(self, rows: np.ndarray) -> None:
-        """With a map pool, give copies ``rows`` a uniformly drawn map each."""
-        if self._draw_maps:
-            drawn = (self._rng.random(len(rows)) * len(self.grids)).astype(np.int64)
-            self._map_index[rows] = drawn
-            self._copy_base[rows] = drawn * self._cells_per_map
-            self._copy_target[rows] = self._target_flat[drawn]
+    def _before_placement(self, rows: np.ndarray) -> None:
+        """Called when copies ``rows`` start new episodes, before the agents are placed (a
+        subclass may give them other maps here)."""
+
+    def _after_move(self, info: dict[str, np.ndarray]) -> None:
+        """Called after each step's move with its ``info``, before finished copies restart
+        (a subclass may add to ``info`` what it measures of the state)."""
 
     def _start_episodes(self, rows: np.ndarray, flat: np.ndarray | None = None) -> None:
-        """Begin new episodes in copies ``rows`` (their maps already drawn): place agents
-        (random distinct free cells unless ``flat`` is given), clear messages, counters,
-        arrival flags and, if tracked, the cells seen."""
+        """Begin new episodes in copies ``rows`` (their maps already chosen): place agents
+        (random distinct free cells unless ``flat`` is given), clear messages, counters and
+        arrival flags."""
         if flat is None:
             maps = self._map_index[rows]
             n_cells = self._free_counts[maps][:, None] - np.array([0, 1])  # A's, then B's
@@ -308,21 +303,6 @@ class VectorMultiAgentEnv:
         self._steps[rows] = 0
         self._visited[rows] = flat == self._copy_target[rows, None]
         self._finished[rows] = False
-        if self.track_coverage:
-            self._seen[rows] = self._off_grid
-            self._mark_seen(rows)
-
-    def _mark_seen(self, rows: np.ndarray | slice) -> np.ndarray:
-        """Mark both agents' patch cells as seen in copies ``rows``; return how many were new."""
-        local = self._flat[rows] - self._copy_base[rows, None]  # (n, 2)
-        patch_cells = (local[:, :, None] + self._patch_offsets).reshape(len(local), -1)
-        seen = self._seen[rows]
-        np.put_along_axis(seen, patch_cells, True, axis=1)
-        self._seen[rows] = seen
-        counts = seen.sum(axis=1)
-        newly_seen = counts - self._seen_count[rows]
-        self._seen_count[rows] = counts
-        return newly_seen
 
     def reset(self, seed: int | None = None, positions: np.ndarray | None = None) -> np.ndarray:
         """Start a new episode in every copy; return observations (N, 2, obs_dim) float32.
@@ -332,7 +312,7 @@ class VectorMultiAgentEnv:
         if check_seed(seed) is not None:
             self._rng = np.random.default_rng(seed)
         every_copy = np.arange(self.n_envs)
-        self._draw_maps_for(every_copy)
+        self._before_placement(every_copy)
         flat = None
         if positions is not None:
             flat = self._check_cells(positions, "positions")
@@ -353,8 +333,7 @@ class VectorMultiAgentEnv:
         that finished start a new episode and ``obs`` holds its first observation; ``info``
         describes the state before that reset: ``final_obs`` (N, 2, obs_dim), ``positions``
         (N, 2, 2), ``on_target`` (N, 2) bool, ``steps`` (N,) steps taken in the episode,
-        and with ``track_coverage`` ``newly_seen`` (N,) int64, the grid cells that entered
-        either agent's patch for the first time in the episode. Without ``auto_reset``,
+        and whatever :meth:`_after_move` adds. Without ``auto_reset``,
         stepping after a copy finished raises ValueError.
         """
         actions, messages = check_step(actions, messages, self.n_envs)
@@ -378,14 +357,13 @@ class VectorMultiAgentEnv:
             "on_target": on_target,
             "steps": self._steps.copy(),
         }
-        if self.track_coverage:
-            info["newly_seen"] = self._mark_seen(slice(None))
+        self._after_move(info)
         finished = terminated | truncated
         if not self.auto_reset:
             self._finished = finished
         elif finished.any():
             rows = np.flatnonzero(finished)
-            self._draw_maps_for(rows)
+            self._before_placement(rows)
             self._start_episodes(rows)
             obs[rows] = self._observe(self._flat[rows], self._messages[rows])
         return obs, rewards, terminated, truncated, info

@@ -21,7 +21,7 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
-from batch_io import write_json_atomic
+from batch.plumbing import write_json_atomic
 from grid_maps import (
     ACTION_DELTAS,
     DEFAULT_MAP_SEED,
@@ -30,6 +30,7 @@ from grid_maps import (
     TARGET,
     generate_map,
 )
+from models import use_reproducible_matmul
 from rollout import EVAL_SEED, PolicyFn, evaluate_policy
 from vector_env import REWARD_MODES, VectorMultiAgentEnv
 
@@ -255,6 +256,7 @@ def int_list(text: str) -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> None:
+    use_reproducible_matmul()  # before the first matrix product
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0],
         epilog="Relative paths are resolved against the current folder.",

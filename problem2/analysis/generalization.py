@@ -10,7 +10,7 @@ from functools import partial
 from typing import Any
 
 import numpy as np
-from grid_maps import HELD_OUT_MAP_SEEDS, generate_map
+from grid_maps import generate_map
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, summarize
 
@@ -18,6 +18,7 @@ from analysis.baselines import POLICIES
 from analysis.episodes import EvaluationSetting
 from analysis.evaluator import GENERALIZATION_MAP_SEEDS, MultiAgentEvaluator, experiment_evaluator
 from analysis.held_out import baselines_on_held_out  # never used for a choice
+from analysis.map_sets import HELD_OUT_MAP_SEEDS
 from analysis.runs import Experiment
 from analysis.stats import seed_statistics
 

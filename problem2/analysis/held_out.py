@@ -11,11 +11,12 @@ from collections.abc import Callable
 from functools import lru_cache
 
 import numpy as np
-from grid_maps import HELD_OUT_MAP_SEEDS, generate_map
+from grid_maps import generate_map
 from rollout import EVAL_SEED, PolicyFn, evaluate_policy
 from vector_env import VectorMultiAgentEnv
 
 from analysis.baselines import POLICIES
+from analysis.map_sets import HELD_OUT_MAP_SEEDS
 
 
 @lru_cache(maxsize=8)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from batch_io import temporary_path_for
+from batch.plumbing import temporary_path_for
 from grid_maps import OBSTACLE, TARGET
 from matplotlib.animation import FuncAnimation, PillowWriter
 from matplotlib.axes import Axes

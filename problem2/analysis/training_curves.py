@@ -14,7 +14,8 @@ import argparse
 import json
 from pathlib import Path
 
-from experiments import MANIFEST, curves_title, plot_training_curves
+from batch.experiments import MANIFEST, curves_title, plot_training_curves
+from models import use_reproducible_matmul
 from train_config import DEFAULT_OUTPUT_DIR
 
 
@@ -47,6 +48,7 @@ def redraw(batch_dir: Path, identity: dict) -> Path:
 
 
 def main(argv: list[str] | None = None) -> list[Path]:
+    use_reproducible_matmul()  # before the first matrix product
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "batch_dirs",

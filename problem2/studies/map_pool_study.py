@@ -4,12 +4,13 @@
     python map_pool_study.py --total_steps 300000 --num_seeds 2 --output_dir /tmp/pool
     python map_pool_study.py --plot_only         # redraw map_pool.png from map_pool.json
 
-Every run trains through :meth:`trainer.MultiAgentTrainer.train` on ``map_pool`` training
-maps (a new one drawn at every episode start, :mod:`map_pool`), keeps the checkpoint that
-scored best on the validation maps, and is then tested on the 40 held-out maps
-(``HELD_OUT_MAP_SEEDS``), greedy and at epsilon = 0.05, ``--episodes_per_map`` episodes
-each, through :func:`analysis.held_out.held_out_success`. The memoryless and sweeping explorers, the
-random policy and the shortest-path oracle of :mod:`baselines` are tested the same way.
+Every run trains through the core loop (``studies.pool_training.PoolTrainer``) on
+``map_pool`` training maps (a new one drawn at every episode start, ``analysis.map_sets``),
+keeps the checkpoint that scored best on the validation maps, and is then tested on the 40
+held-out maps (``HELD_OUT_MAP_SEEDS``), greedy and at epsilon = 0.05, ``--episodes_per_map``
+episodes each, through :func:`analysis.held_out.held_out_success`. The memoryless and
+sweeping explorers, the random policy and the shortest-path oracle of :mod:`baselines` are
+tested the same way.
 
 The recipe (``RECIPE``) departs from the assignment's setting in two named ways:
 parameter sharing (one set of weights for both agents instead of independent learners)
@@ -41,22 +42,28 @@ import numpy as np
 import torch
 from analysis.baselines import POLICY_LABELS
 from analysis.held_out import baselines_on_held_out, held_out_success
+from analysis.map_sets import (
+    HELD_OUT_MAP_SEEDS,
+    MAX_POOL_SIZE,
+    TRAINING_FIRST_SEED,
+    VALIDATION_FIRST_SEED,
+)
 from analysis.stats import BOOTSTRAP_RESAMPLES, seed_paired_differences, seed_statistics
-from batch_io import (
+from batch.plumbing import (
     ProgressLine,
     make_console_safe,
     run_jobs,
     temporary_path_for,
     write_json_atomic,
 )
-from grid_maps import HELD_OUT_MAP_SEEDS, MAX_POOL_SIZE, TRAINING_FIRST_SEED, VALIDATION_FIRST_SEED
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
+from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED
-from train_config import MODES, SettingError, TrainConfig, available_cores, check_value, int_in
-from trainer import MultiAgentTrainer
+from train_config import MODES, SettingError, available_cores, check_value, int_in
 
+from studies.pool_training import PoolConfig, PoolTrainer
 from studies.staging import best_env_steps, best_selection, check_field, staged_output, write_timing
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "map_pool"
@@ -102,7 +109,7 @@ DEPARTURES = {
 
 
 def train_and_test(
-    cfg: TrainConfig, mode: str, seed: int, staging: Path, episodes: int, progress: Any = None
+    cfg: PoolConfig, mode: str, seed: int, staging: Path, episodes: int, progress: Any = None
 ) -> dict[str, Any]:
     """Train one (mode, seed) on the map pool into ``staging``, then test it on the
     held-out maps; returns the run's record."""
@@ -111,7 +118,7 @@ def train_and_test(
     run_cfg = dataclasses.replace(cfg, mode=mode, seed=seed, seeds=[], workers=1)
     # With a map pool only the grid size, window and time limit of this env are used.
     env = MultiAgentEnv(grid_size=cfg.grid_shape(), max_steps=cfg.max_steps, seed=cfg.map_seed)
-    trainer = MultiAgentTrainer(env, run_cfg)
+    trainer = PoolTrainer(env, run_cfg)
     trainer.models_dir, trainer.logs_dir = staging / "agent_models", staging / "training_logs"
 
     def report(row: dict[str, Any]) -> None:
@@ -143,7 +150,7 @@ def heuristic_results(episodes: int, max_steps: int) -> dict[str, Any]:
     return {name: seed_statistics(rates) | {"per_map": rates} for name, rates in per_map.items()}
 
 
-def summarise(cfg: TrainConfig, runs: list[dict], heuristics: dict, episodes: int) -> dict:
+def summarise(cfg: PoolConfig, runs: list[dict], heuristics: dict, episodes: int) -> dict:
     """The study's JSON (everything but wall times)."""
     modes: dict[str, Any] = {}
     for mode in cfg.run_modes():
@@ -278,7 +285,7 @@ def plot(path: Path, results: dict) -> None:
     save_bars(fig, ax, f"success on {len(HELD_OUT_MAP_SEEDS)} held-out maps", path)
 
 
-def run_study(cfg: TrainConfig, episodes: int, output_dir: Path) -> dict:
+def run_study(cfg: PoolConfig, episodes: int, output_dir: Path) -> dict:
     """Train and test every (mode, seed) of ``cfg`` in ``cfg.workers`` processes, test the
     heuristics, and install the outputs in ``output_dir`` whole (or not at all)."""
     with staged_output(output_dir) as staging:
@@ -361,7 +368,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]:
+def parse_args(argv: list[str] | None) -> tuple[PoolConfig, argparse.Namespace]:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.plot_only and not (args.output_dir / "map_pool.json").is_file():
@@ -379,13 +386,14 @@ def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]
         # Flags turned into other fields are checked by their field's rule alone.
         check_field("num_seeds", args.num_seeds)  # the seeds 0..num_seeds-1
         check_field("output_dir", str(args.output_dir))  # the study's own folder
-        cfg = TrainConfig(**settings).validate()
+        cfg = PoolConfig(**settings).validate()
     except SettingError as error:
         parser.error(error.usage())
     return cfg, args
 
 
 def main(argv: list[str] | None = None) -> dict:
+    use_reproducible_matmul()  # before the first matrix product
     make_console_safe()
     cfg, args = parse_args(argv)
     if args.plot_only:

@@ -47,8 +47,9 @@ from analysis.stats import (
     mode_contrasts,
     spearman_interval,
 )
-from batch_io import ProgressLine, make_console_safe, run_jobs, write_json_atomic
+from batch.plumbing import ProgressLine, make_console_safe, run_jobs, write_json_atomic
 from grid_maps import DEFAULT_MAP_SEED, OBSTACLE, TARGET
+from models import use_reproducible_matmul
 from rollout import EVAL_EPSILON, EVAL_SEED
 from train_config import available_cores
 
@@ -281,6 +282,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Evaluate every map of the panel and write the study's files."""
+    use_reproducible_matmul()  # before the first matrix product
     make_console_safe()
     args = parse_args(argv)
     jobs = [(m, str(folder), args.num_episodes) for m, folder in args.folders.items()]

@@ -22,8 +22,9 @@ from typing import Any
 from analysis.pipeline import CONDITIONS, evaluate_experiment
 from analysis.runs import read_experiment
 from analysis.stats import seed_paired_differences, seed_statistics
-from batch_io import make_console_safe, write_json_atomic
-from experiments import read_csv, run_experiments
+from batch.experiments import read_csv, run_experiments
+from batch.plumbing import make_console_safe, write_json_atomic
+from models import use_reproducible_matmul
 from rollout import EVAL_EPSILON
 from train_config import TrainConfig
 
@@ -93,6 +94,7 @@ def run_check(panel_dir: Path, num_episodes: int, total_steps: int) -> dict[str,
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
+    use_reproducible_matmul()  # before the first matrix product
     make_console_safe()
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--panel_dir", "--panel-dir", type=Path, default=PANEL_DIR)

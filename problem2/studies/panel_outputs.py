@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 from analysis.plots import save_figure
-from batch_io import temporary_path_for
+from batch.plumbing import temporary_path_for
 from matplotlib.figure import Figure
 
 MODE_ORDER = ("independent", "comm", "distance", "full")

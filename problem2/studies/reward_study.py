@@ -32,8 +32,9 @@ from analysis.evaluator import MultiAgentEvaluator
 from analysis.failures import arrivals
 from analysis.runs import Experiment, load_model_pair, read_experiment
 from analysis.stats import seed_statistics
-from batch_io import write_json_atomic
+from batch.plumbing import write_json_atomic
 from grid_maps import DEFAULT_MAP_SEED, TARGET, generate_map
+from models import use_reproducible_matmul
 from rollout import EVAL_EPSILON, EVAL_SEED
 from vector_env import VectorMultiAgentEnv
 
@@ -345,6 +346,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> dict:
+    use_reproducible_matmul()  # before the first matrix product
     args = parse_args(argv)
     if args.plot_only:
         study = json.loads((args.output_dir / "reward_study.json").read_text(encoding="utf-8"))

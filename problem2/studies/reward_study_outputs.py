@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from batch_io import temporary_path_for
+from batch.plumbing import temporary_path_for
 
 CONDITIONS = ("greedy", "epsilon")  # the evaluation conditions, in the order run
 
@@ -71,7 +71,7 @@ def plot_study(study: dict, path: Path) -> None:
     mode; filled: trained on the assignment's reward, hollow: on the arrival reward), one
     panel per condition; the exact-DP optima (DP) in black. Drawn at the width the report prints
     it (4.9 in)."""
-    from experiments import MODE_COLOURS
+    from batch.experiments import MODE_COLOURS
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
 

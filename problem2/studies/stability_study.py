@@ -28,8 +28,9 @@ import train
 from analysis.episodes import EvaluationSetting, model_policy, recorded_episodes
 from analysis.failures import arrivals
 from analysis.runs import load_map, load_model_pair
-from batch_io import write_json_atomic
-from experiments import read_csv
+from batch.experiments import read_csv
+from batch.plumbing import write_json_atomic
+from models import use_reproducible_matmul
 from rollout import VALIDATION_SEED
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "stability"
@@ -141,6 +142,7 @@ def summarise_mode(logs_dir: Path, mode: str) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    use_reproducible_matmul()  # before the first matrix product
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--study_dir", type=Path, default=STUDY_DIR)
     parser.add_argument("--train", action="store_true", help="train every setting first")

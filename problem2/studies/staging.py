@@ -12,7 +12,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from batch_io import remove_stale_temporaries, write_json_atomic
+from batch.plumbing import remove_stale_temporaries, write_json_atomic
 from train_config import check_setting
 from trainer import MultiAgentTrainer
 

@@ -11,8 +11,9 @@ import sys
 from pathlib import Path
 
 import pytest
-from batch_io import ProgressLine
-from train_config import SettingError, TrainConfig, parse_config
+from batch.cli import parse_config
+from batch.plumbing import ProgressLine
+from train_config import SettingError, TrainConfig
 
 from tests.conftest import PROBLEM2, load_problem_module
 

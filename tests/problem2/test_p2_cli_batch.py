@@ -16,7 +16,7 @@ from pathlib import Path
 
 import experiments  # the module train.py uses (monkeypatched below)
 import pytest
-from batch_io import remove_stale_temporaries
+from batch.plumbing import remove_stale_temporaries
 from rollout import select_best
 
 from tests.conftest import PROBLEM2, load_problem_module

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from analysis.baselines import target_distances
 from analysis.runs import load_map
-from grid_maps import generate_map, save_map
+from batch.plumbing import save_map
+from grid_maps import generate_map
 from multi_agent_env import MultiAgentEnv
 from vector_env import VectorMultiAgentEnv
 

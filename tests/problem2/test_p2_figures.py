@@ -14,7 +14,7 @@ from analysis import training_curves
 from analysis.baselines import POLICIES, POLICY_LABELS
 from analysis.estimate_plots import plot_measures
 from analysis.plots import message_range
-from experiments import CURVE_REWARDS
+from batch.experiments import CURVE_REWARDS
 from matplotlib.figure import Figure
 from studies import map_pool_study, reward_study
 from studies.memory import study as memory_study

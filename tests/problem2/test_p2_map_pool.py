@@ -10,13 +10,8 @@ import numpy as np
 import pytest
 import torch
 from analysis.held_out import held_out_maps
-from grid_maps import (
-    DEFAULT_MAP_SEED,
-    HELD_OUT_MAP_SEEDS,
-    generate_map,
-    training_maps,
-    validation_maps,
-)
+from analysis.map_sets import HELD_OUT_MAP_SEEDS, training_maps, validation_maps
+from grid_maps import DEFAULT_MAP_SEED, generate_map
 from multi_agent_env import MultiAgentEnv
 from studies import map_pool_study
 from train_config import TrainConfig

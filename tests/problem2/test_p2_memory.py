@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import torch
 from analysis.episodes import recorded_episodes
-from grid_maps import TARGET, training_maps
+from analysis.map_sets import training_maps
+from grid_maps import TARGET
 from models import MESSAGE_INDEX
 from multi_agent_env import MultiAgentEnv
 from rollout import run_episodes

@@ -6,12 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from replay_buffer import (
-    TRANSITION_FIELDS,
-    PrioritizedReplayBuffer,
-    ReplayBuffer,
-    SumTree,
-)
+from replay import TRANSITION_FIELDS
+from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer, SumTree
 from rollout import NStepWindow
 
 

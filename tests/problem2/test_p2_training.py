@@ -12,10 +12,11 @@ import pytest
 import torch
 from analysis.baselines import random_policy
 from analysis.runs import load_map
+from batch.cli import build_parser, parse_config
 from models import AgentDQN, DuelingDQN, PairedQNetworks
 from multi_agent_env import MultiAgentEnv
 from rollout import evaluate_policy
-from train_config import TrainConfig, build_parser, parse_config
+from train_config import TrainConfig
 
 from tests.conftest import load_problem_module, weights_of
 

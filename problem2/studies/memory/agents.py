@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from batch_io import temporary_path_for
+from batch.plumbing import temporary_path_for
 from models import (
     MESSAGE_INDEX,
     OBSERVATION_DIM,

@@ -25,11 +25,9 @@ import torch
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, evaluate_policy
 from torch.nn import functional as F
-from train_config import TrainConfig
-from trainer import MultiAgentTrainer
-from vector_env import VectorMultiAgentEnv
 
 from studies.memory.agents import NUM_ACTIONS, RecurrentQNetwork, export_recurrent, memory_policy
+from studies.pool_training import PoolConfig, PooledVectorEnv, PoolTrainer
 
 TRANSITIONS_PER_EPISODE = 16  # a batch of batch_size transitions: batch_size // 16 episodes
 CURRICULUM_END = 0.5  # fraction of the run at which the curriculum's share reaches 0
@@ -58,7 +56,7 @@ class Levers:
             raise ValueError(f"curriculum must be a share in [0, 1], got {self.curriculum!r}")
 
 
-class CurriculumEnv(VectorMultiAgentEnv):
+class CurriculumEnv(PooledVectorEnv):
     """The vectorised environment, except that a share ``start_on_target`` (0 unless set)
     of the episodes it starts by itself begin with one agent, A or B at random, on the
     target: the other agent's start cell is drawn as usual, and that agent counts as having
@@ -133,18 +131,18 @@ class EpisodeReplay:
         }
 
 
-class RecurrentTrainer(MultiAgentTrainer):
+class RecurrentTrainer(PoolTrainer):
     """Trains two agents with memory (shared weights) in one of ``agents.MEMORY_MODES``.
 
     Args:
         env: the environment whose grid size, window and time limit training uses.
-        cfg: a validated :class:`TrainConfig` (its ``mode`` is ignored: ``mode`` is used).
+        cfg: a validated :class:`PoolConfig` (its ``mode`` is ignored: ``mode`` is used).
         mode: independent, comm, distance or full.
         levers: the listening levers (:class:`Levers`), none by default.
     """
 
     def __init__(
-        self, env: MultiAgentEnv, cfg: TrainConfig, mode: str, levers: Levers = Levers()
+        self, env: MultiAgentEnv, cfg: PoolConfig, mode: str, levers: Levers = Levers()
     ) -> None:
         if cfg.target_potential > 0 and cfg.potential_credit == "agent":  # not in this td_loss
             raise ValueError(

@@ -25,12 +25,14 @@ from typing import Any
 import numpy as np
 import torch
 from analysis.stats import seed_statistics
-from batch_io import ProgressLine, make_console_safe, run_jobs, write_json_atomic
+from batch.plumbing import ProgressLine, make_console_safe, run_jobs, write_json_atomic
+from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
-from train_config import SettingError, TrainConfig, available_cores
+from train_config import SettingError, available_cores
 
 from studies.memory.learner import Levers, RecurrentTrainer
 from studies.memory.study import RECIPE, RESULTS
+from studies.pool_training import PoolConfig
 from studies.staging import best_env_steps, best_selection, check_field, staged_output
 
 OUTPUT_DIR = RESULTS / "memory_levers"
@@ -48,7 +50,7 @@ LEVER_MODES = ("full",)
 
 
 def train_setting(
-    cfg: TrainConfig, setting: str, mode: str, seed: int, folder: Path, progress: Any = None
+    cfg: PoolConfig, setting: str, mode: str, seed: int, folder: Path, progress: Any = None
 ) -> dict[str, Any]:
     """Train one (setting, mode, seed); its validation results."""
     torch.set_num_threads(1)
@@ -111,6 +113,7 @@ def summarise(runs: list[dict]) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> dict:
+    use_reproducible_matmul()  # before the first matrix product
     make_console_safe()
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--setting", default="all", help="all, or some of " + ", ".join(SETTINGS))
@@ -124,7 +127,7 @@ def main(argv: list[str] | None = None) -> dict:
             f"--setting: unknown {', '.join(unknown)}; use all or some of {', '.join(SETTINGS)}"
         )
     try:
-        cfg = TrainConfig(**RECIPE | {"seeds": [], "workers": args.workers}).validate()
+        cfg = PoolConfig(**RECIPE | {"seeds": [], "workers": args.workers}).validate()
         check_field("workers", args.workers)
     except SettingError as error:
         parser.error(error.usage())

@@ -32,19 +32,15 @@ from typing import Any
 import numpy as np
 import torch
 from analysis.failures import homing_shares
+from analysis.map_sets import HELD_OUT_MAP_SEEDS
 from analysis.runs import load_policy
 from analysis.stats import seed_paired_differences, seed_statistics
-from batch_io import (
-    ProgressLine,
-    make_console_safe,
-    run_jobs,
-    write_json_atomic,
-)
-from grid_maps import HELD_OUT_MAP_SEEDS
+from batch.plumbing import ProgressLine, make_console_safe, run_jobs, write_json_atomic
 from matplotlib.figure import Figure
+from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED
-from train_config import SettingError, TrainConfig, available_cores, check_value, int_in
+from train_config import SettingError, available_cores, check_value, int_in
 
 from studies import map_pool_study
 from studies.memory.agents import MEMORY_MODES
@@ -55,6 +51,7 @@ from studies.memory.held_out_tests import (
     held_out_results,
 )
 from studies.memory.learner import TRANSITIONS_PER_EPISODE, RecurrentTrainer
+from studies.pool_training import PoolConfig
 from studies.staging import best_env_steps, best_selection, check_field, staged_output, write_timing
 
 RESULTS = Path(__file__).resolve().parents[2] / "results" / "studies"
@@ -74,7 +71,7 @@ DIFFERENCES = (
 
 
 def train_and_test(
-    cfg: TrainConfig, mode: str, seed: int, staging: Path, episodes: int, progress: Any = None
+    cfg: PoolConfig, mode: str, seed: int, staging: Path, episodes: int, progress: Any = None
 ) -> dict[str, Any]:
     """Train one (mode, seed) on the map pool into ``staging``, then test its exported pair."""
     torch.set_num_threads(1)
@@ -103,7 +100,7 @@ def train_and_test(
 
 
 def summarise(
-    cfg: TrainConfig, runs: list[dict], beacon: list[float], no_memory: dict | None
+    cfg: PoolConfig, runs: list[dict], beacon: list[float], no_memory: dict | None
 ) -> dict:
     """The study's JSON (everything but wall times)."""
     by_mode = {
@@ -210,7 +207,7 @@ def read_no_memory() -> dict | None:
 
 
 def run_study(
-    cfg: TrainConfig, modes: list[str], seeds: list[int], episodes: int, output_dir: Path
+    cfg: PoolConfig, modes: list[str], seeds: list[int], episodes: int, output_dir: Path
 ) -> dict:
     """Train and test every (mode, seed) in ``cfg.workers`` processes; install the outputs
     in ``output_dir`` whole (or not at all)."""
@@ -225,7 +222,7 @@ def run_study(
     return results
 
 
-def resummarise(cfg: TrainConfig, episodes: int, output_dir: Path) -> dict:
+def resummarise(cfg: PoolConfig, episodes: int, output_dir: Path) -> dict:
     """The study's summary from the runs its memory.json records (what ``run_study`` feeds
     ``summarise``, less the wall times) and the current map-pool results: what a rerun
     writes when training gives the same runs, without the 30 minutes of training."""
@@ -252,7 +249,7 @@ def format_table(results: dict) -> str:
     return "\n".join(lines)
 
 
-def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]:
+def parse_args(argv: list[str] | None) -> tuple[PoolConfig, argparse.Namespace]:
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
     )
@@ -317,7 +314,7 @@ def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]
         check_value("episodes_per_map", args.episodes_per_map, int_in(1, 100_000))
         check_field("num_seeds", args.num_seeds)
         check_field("output_dir", str(args.output_dir))
-        cfg = TrainConfig(**settings).validate()
+        cfg = PoolConfig(**settings).validate()
     except SettingError as error:
         parser.error(error.usage())
     args.modes, args.seeds = modes, list(range(args.num_seeds))
@@ -325,6 +322,7 @@ def parse_args(argv: list[str] | None) -> tuple[TrainConfig, argparse.Namespace]
 
 
 def main(argv: list[str] | None = None) -> dict:
+    use_reproducible_matmul()  # before the first matrix product
     make_console_safe()
     cfg, args = parse_args(argv)
     if args.plot_only:

@@ -20,20 +20,22 @@ from typing import Any
 
 import numpy as np
 import torch
-from batch_io import (
-    ProgressLine,
-    remove_stale_temporaries,
-    run_jobs,
-    temporary_path_for,
-    write_json_atomic,
-)
-from grid_maps import generate_map, save_map
+from grid_maps import generate_map
 from rollout import EVAL_EPSILON, VALIDATION_SEED, select_best
 from train_config import DEFAULT_OUTPUT_DIR, SettingError, TrainConfig
 from trainer import LAST_WEIGHTS, MultiAgentTrainer
 from vector_env import VectorMultiAgentEnv
 
-PROBLEM2 = Path(__file__).resolve().parent
+from batch.plumbing import (
+    ProgressLine,
+    remove_stale_temporaries,
+    run_jobs,
+    save_map,
+    temporary_path_for,
+    write_json_atomic,
+)
+
+PROBLEM2 = Path(__file__).resolve().parent.parent
 MANIFEST = "manifest.json"
 INTERRUPTED = "interrupted"
 MODE_COLOURS = {
@@ -281,17 +283,21 @@ def model_listing(files: dict[str, str], models_dir: Path) -> dict[str, dict[str
 
 
 def code_version() -> str:
-    """sha256 of the code of problem2/*.py in name order: each file's name, a NUL byte, the
-    dump of its syntax tree without docstrings, a NUL byte. Comments, docstrings and layout
-    do not count, so a documentation edit leaves the version (and every manifest) as it is."""
+    """sha256 of the code of every module under problem2/ (the core, the batch machinery,
+    analysis and studies; not results/), in path order: each file's relative path, a NUL
+    byte, the dump of its syntax tree without docstrings, a NUL byte. Comments, docstrings
+    and layout do not count, so a documentation edit leaves the version (and every
+    manifest) as it is."""
     digest = hashlib.sha256()
-    for path in sorted(PROBLEM2.glob("*.py"), key=lambda p: p.name):
+    paths = [p for p in PROBLEM2.rglob("*.py") if "results" not in p.relative_to(PROBLEM2).parts]
+    for path in sorted(paths, key=lambda p: p.relative_to(PROBLEM2).as_posix()):
         tree = ast.parse(path.read_text(encoding="utf-8"))
         for node in ast.walk(tree):  # docstrings, also those after a dataclass field
             body = getattr(node, "body", None)
             if isinstance(body, list) and any(is_docstring(s) for s in body):
                 node.body = [s for s in body if not is_docstring(s)] or [ast.Pass()]
-        digest.update(path.name.encode("utf-8") + b"\0" + ast.dump(tree).encode() + b"\0")
+        name = path.relative_to(PROBLEM2).as_posix()
+        digest.update(name.encode("utf-8") + b"\0" + ast.dump(tree).encode() + b"\0")
     return digest.hexdigest()
 
 

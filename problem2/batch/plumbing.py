@@ -20,6 +20,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TextIO
 
+import numpy as np
+from grid_maps import check_grid
+
 
 def make_console_safe() -> None:
     """Print '?', not a UnicodeEncodeError, for what a console (Windows' cp1252) cannot show."""
@@ -47,6 +50,11 @@ def write_json_atomic(path: str | Path, data: Any) -> None:
     with temporary_path_for(path) as temporary:
         text = json.dumps(data, indent=2, allow_nan=False) + "\n"
         temporary.write_text(text, encoding="utf-8", newline="\n")
+
+
+def save_map(path: str | Path, grid: np.ndarray) -> None:
+    """Write a validated map to ``path`` as JSON ``{"grid": [[...], ...]}`` (atomically)."""
+    write_json_atomic(path, {"grid": check_grid(grid).tolist()})
 
 
 def process_alive(pid: int) -> bool:

@@ -1,0 +1,173 @@
+"""Training on a pool of generated maps: the extensions of the core learner that the map-pool
+and memory studies use, none of them part of the assignment's recipe.
+
+* :class:`PoolConfig`: :class:`~train_config.TrainConfig` with the pool's settings (the pool
+  size, validation maps, parameter sharing, the coverage and on-target bonuses).
+* :class:`PooledVectorEnv`: the vectorised environment whose copies draw a map from the pool
+  at every episode start, and which can count the grid cells the agents have seen.
+* :class:`PoolTrainer`: the core :class:`~trainer.MultiAgentTrainer` on such environments
+  (validated on other generated maps), with the bonuses added to the learning reward and,
+  with ``share_weights``, one set of weights for both agents.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from analysis.map_sets import MAX_POOL_SIZE, training_maps, validation_maps
+from grid_maps import check_grid_stack
+from settings import boolean, int_in, number_in, setting
+from train_config import TrainConfig
+from trainer import MultiAgentTrainer
+from vector_env import VectorMultiAgentEnv
+
+
+@dataclass
+class PoolConfig(TrainConfig):
+    """The core settings and those of training on a map pool."""
+
+    map_pool: int = setting(
+        0,
+        "0: train on the --map_seed map; N > 0: on a pool of N generated maps "
+        "(analysis/map_sets.py), a new one drawn at each episode start, evaluated on other "
+        "generated maps",
+        int_in(0, MAX_POOL_SIZE),
+    )
+    validation_maps: int = setting(
+        200,
+        "with --map_pool: generated validation maps of the periodic evaluations (1 or more)",
+        int_in(1, MAX_POOL_SIZE),
+    )
+    share_weights: bool = setting(
+        False,
+        "parameter sharing: both agents use one set of weights (same start, summed gradient), "
+        "a departure from the assignment's independent learners",
+        boolean,
+    )
+    coverage_bonus: float = setting(
+        0.0,
+        "reward shaping for learning only (>= 0): added per grid cell that enters either "
+        "agent's 3x3 view for the first time in the episode",
+        number_in(0.0, math.inf, high_open=True),
+    )
+    on_target_bonus: float = setting(
+        0.0,
+        "reward shaping for learning only (>= 0): added per agent standing on the target",
+        number_in(0.0, math.inf, high_open=True),
+    )
+
+
+class PooledVectorEnv(VectorMultiAgentEnv):
+    """``n_envs`` copies that draw a map uniformly from ``map_pool`` (M, H, W) at each episode
+    start (from the same stream as the start cells, map first). With ``track_coverage`` each
+    step's ``info`` holds ``newly_seen`` (N,) int64: the grid cells that entered either agent's
+    patch for the first time in the episode. Other arguments as the core environment's."""
+
+    def __init__(
+        self,
+        n_envs: int,
+        *,
+        map_pool: np.ndarray | None = None,
+        track_coverage: bool = False,
+        **kwargs: Any,
+    ) -> None:
+        self._pool = None if map_pool is None else check_grid_stack(map_pool, "map_pool")
+        if self._pool is not None and kwargs.get("grid") is not None:
+            raise ValueError("give grid or map_pool, not both")
+        self.track_coverage = bool(track_coverage)
+        super().__init__(n_envs, **kwargs)
+
+    def _choose_maps(self, grid_size, seed, grid, grids):  # noqa: ANN001, ANN202
+        if self._pool is None:
+            return super()._choose_maps(grid_size, seed, grid, grids)
+        return self._pool, self._pool[0] if len(self._pool) == 1 else None
+
+    def _before_placement(self, rows: np.ndarray) -> None:
+        """Give copies ``rows`` a uniformly drawn map each."""
+        if self._pool is not None:
+            drawn = (self._rng.random(len(rows)) * len(self.grids)).astype(np.int64)
+            self._map_index[rows] = drawn
+            self._copy_base[rows] = drawn * self._cells_per_map
+            self._copy_target[rows] = self._target_flat[drawn]
+
+    def _start_episodes(self, rows: np.ndarray, flat: np.ndarray | None = None) -> None:
+        super()._start_episodes(rows, flat)
+        if self.track_coverage:
+            if not hasattr(self, "_seen"):
+                self._seen = np.zeros((self.n_envs, self._cells_per_map), dtype=bool)
+                self._seen_count = np.zeros(self.n_envs, dtype=np.int64)
+            self._seen[rows] = self._off_grid
+            self._mark_seen(rows)
+
+    def _after_move(self, info: dict[str, np.ndarray]) -> None:
+        if self.track_coverage:
+            info["newly_seen"] = self._mark_seen(slice(None))
+
+    def _mark_seen(self, rows: np.ndarray | slice) -> np.ndarray:
+        """Mark both agents' patch cells as seen in copies ``rows``; return how many were new."""
+        local = self._flat[rows] - self._copy_base[rows, None]  # (n, 2)
+        patch_cells = (local[:, :, None] + self._patch_offsets).reshape(len(local), -1)
+        seen = self._seen[rows]
+        np.put_along_axis(seen, patch_cells, True, axis=1)
+        self._seen[rows] = seen
+        counts = seen.sum(axis=1)
+        newly_seen = counts - self._seen_count[rows]
+        self._seen_count[rows] = counts
+        return newly_seen
+
+
+class PoolTrainer(MultiAgentTrainer):
+    """The core learner on a map pool (``cfg`` a :class:`PoolConfig`), with the pool's
+    shaping and optional parameter sharing."""
+
+    vector_env_class: type[PooledVectorEnv] = PooledVectorEnv
+
+    def __init__(self, env: Any, args: PoolConfig) -> None:
+        if not isinstance(args, PoolConfig):
+            raise TypeError(f"PoolTrainer trains from a PoolConfig, got {type(args).__name__}")
+        super().__init__(env, args)
+        if self.cfg.share_weights:  # one set of weights: B starts as a copy of A
+            self.online.load_agents([self.online.agent(0)] * 2)
+            self.target.load_state_dict(self.online.state_dict())
+
+    def make_vector_env(
+        self, n_envs: int, seed: int | None, validation: bool = False
+    ) -> VectorMultiAgentEnv:
+        """With ``map_pool`` > 0, copies that draw from the training maps (tracking the cells
+        seen, for the coverage bonus) or, for ``validation``, from the validation maps."""
+        cfg = self.cfg
+        if not cfg.map_pool:
+            return super().make_vector_env(n_envs, seed, validation)
+        size = self.env.grid_size
+        pool = validation_maps(cfg.validation_maps, size) if validation else None
+        return self.vector_env_class(
+            n_envs,
+            map_pool=training_maps(cfg.map_pool, size) if pool is None else pool,
+            track_coverage=not validation and cfg.coverage_bonus > 0,
+            obs_window=self.env.obs_window,
+            max_steps=self.env.max_steps,
+            seed=seed,
+            reward_mode=cfg.reward_mode,
+        )
+
+    def learning_rewards(
+        self, rewards: np.ndarray, info: dict[str, np.ndarray], obs: np.ndarray
+    ) -> np.ndarray:
+        """The core's learning reward, plus ``on_target_bonus`` per agent on the target and
+        ``coverage_bonus`` per newly seen cell."""
+        rewards = super().learning_rewards(rewards, info, obs)
+        if self.cfg.on_target_bonus > 0:
+            rewards = rewards + self.cfg.on_target_bonus * info["on_target"].sum(axis=1)
+        if self.cfg.coverage_bonus > 0 and "newly_seen" in info:
+            rewards = rewards + self.cfg.coverage_bonus * info["newly_seen"]
+        return rewards
+
+    def after_backward(self) -> None:
+        """With ``share_weights``, each shared parameter gets the sum of both agents' gradients."""
+        if self.cfg.share_weights:
+            for p in self.online_parameters:  # each (2, ...), agent axis first
+                if p.grad is not None:  # None: a message head no loss reaches (independent)
+                    p.grad.copy_(p.grad.sum(dim=0, keepdim=True).expand_as(p.grad))
