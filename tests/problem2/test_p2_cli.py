@@ -136,7 +136,7 @@ def test_output_dir_that_is_a_file_is_refused(tmp_path: Path, capsys) -> None:
 
 
 def test_settings_from_python_are_checked_too() -> None:
-    for bad in ({"lr": "0.1"}, {"dueling": 1}, {"eval_episodes": 2.0}, {"seeds": [1, True]}):
+    for bad in ({"lr": "0.1"}, {"keep_best": 1}, {"eval_episodes": 2.0}, {"seeds": [1, True]}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             TrainConfig(**bad).validate()
 
@@ -200,7 +200,7 @@ def test_help_states_units_ranges_path_rule_and_overwrite_rule(tmp_path: Path) -
 
 
 def test_console_without_utf8_gets_replacement_characters_not_a_crash() -> None:
-    code = "import batch_io; batch_io.make_console_safe(); print('ε → ×')"
+    code = "from batch import plumbing; plumbing.make_console_safe(); print('ε → ×')"
     env = dict(os.environ, PYTHONIOENCODING="cp1252")
     result = subprocess.run(
         [sys.executable, "-c", code], cwd=PROBLEM2, env=env, capture_output=True, timeout=120

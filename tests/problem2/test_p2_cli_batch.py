@@ -14,8 +14,8 @@ import sys
 import time
 from pathlib import Path
 
-import experiments  # the module train.py uses (monkeypatched below)
 import pytest
+from batch import experiments  # the module train.py uses (monkeypatched below)
 from batch.plumbing import remove_stale_temporaries
 from rollout import select_best
 

@@ -15,8 +15,13 @@ import torch
 from tests.conftest import PROBLEM2, ROOT, load_problem_module
 
 train = load_problem_module("problem2", "train")
-SUBFOLDERS = ("analysis", "studies")
-COURSE_ENTRY_SCRIPTS = ("evaluate.py",)  # the course's evaluator runs the analysis
+SUBFOLDERS = ("analysis", "studies", "batch")
+# The course's scripts that may reach into a subfolder: the trainer runs batches, the
+# evaluator runs the analysis.
+COURSE_ENTRY_SCRIPTS = {"train.py": {"batch"}, "evaluate.py": {"analysis", "batch"}}
+LEARNER_BUDGET = (8, 1400)  # modules, code lines of the learner's import closure
+STUDY_EXTENSIONS = ("map_pool", "share_weights", "prioritized", "dueling", "coverage_bonus")
+STUDY_EXTENSIONS += ("on_target_bonus", "memory")
 
 
 def imported_modules(path: Path) -> set[str]:
@@ -53,7 +58,7 @@ def import_closure(start: str) -> dict[str, Path]:
 
 @pytest.mark.parametrize("path", sorted(PROBLEM2.glob("*.py")), ids=lambda p: p.name)
 def test_core_modules_import_no_subfolder(path: Path) -> None:
-    allowed = set(SUBFOLDERS) if path.name in COURSE_ENTRY_SCRIPTS else set()
+    allowed = COURSE_ENTRY_SCRIPTS.get(path.name, set())
     assert top_packages(path) & set(SUBFOLDERS) <= allowed
 
 
@@ -68,11 +73,48 @@ def test_the_checker_sees_subfolder_imports(tmp_path: Path) -> None:
     assert top_packages(sample) >= {"analysis", "studies"}
 
 
-def test_train_py_needs_only_the_core() -> None:
+def test_train_py_needs_only_the_core_and_the_batch_package() -> None:
     closure = import_closure("train")
-    assert "trainer" in closure and "replay_buffer" in closure
-    assert not [name for name in closure if name.split(".")[0] in SUBFOLDERS]
-    assert all(path.parent == PROBLEM2 for path in closure.values())
+    assert "trainer" in closure and "replay" in closure
+    assert not [name for name in closure if name.split(".")[0] in ("analysis", "studies")]
+    assert len(closure) <= 12, sorted(closure)
+
+
+def code_lines(path: Path) -> int:
+    """Non-blank lines that are not comments (docstrings count)."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    return sum(1 for line in lines if line.strip() and not line.strip().startswith("#"))
+
+
+def identifiers(path: Path) -> set[str]:
+    """Names used as code (not words in docstrings), and strings that are identifiers."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Name):
+            names.add(node.id)
+        elif isinstance(node, ast.Attribute | ast.keyword | ast.arg):
+            names.add(getattr(node, "attr", None) or getattr(node, "arg", None))
+        elif isinstance(node, ast.FunctionDef | ast.ClassDef):
+            names.add(node.name)
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+            names.add(node.value)
+    return names
+
+
+def test_the_learner_is_a_small_core_without_batch_machinery_or_study_extensions() -> None:
+    """The module that defines td_loss and everything it imports: at most 8 modules and
+    1,400 code lines, none from a subfolder, no branch for a study extension."""
+    closure = import_closure("trainer")
+    modules, lines = LEARNER_BUDGET
+    assert len(closure) <= modules, sorted(closure)
+    assert sum(code_lines(path) for path in closure.values()) <= lines
+    assert all(path.parent == PROBLEM2 for path in closure.values()), sorted(closure)
+    for name, path in closure.items():
+        assert not set(STUDY_EXTENSIONS) & identifiers(path), name
+
+
+def test_problem2_root_holds_the_course_files_and_a_small_core() -> None:
+    assert len(list(PROBLEM2.glob("*.py"))) <= 12
 
 
 def formatter_escapes(path: Path) -> list[int]:

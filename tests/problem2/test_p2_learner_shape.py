@@ -7,10 +7,10 @@ import shutil
 import traceback
 from pathlib import Path
 
-import experiments
 import models
 import pytest
 import torch
+from batch import experiments
 
 from tests.conftest import PROBLEM2, load_problem_module
 
@@ -67,9 +67,10 @@ def test_code_version_ignores_documentation_but_not_code(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     copy = tmp_path / "problem2"
-    copy.mkdir()
-    for path in PROBLEM2.glob("*.py"):
-        shutil.copyfile(path, copy / path.name)
+    for path in PROBLEM2.rglob("*.py"):
+        if "results" not in path.relative_to(PROBLEM2).parts:
+            (copy / path.relative_to(PROBLEM2)).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(path, copy / path.relative_to(PROBLEM2))
     monkeypatch.setattr(experiments, "PROBLEM2", copy)
     original = experiments.code_version()
     assert original == experiments.code_version()
@@ -81,4 +82,8 @@ def test_code_version_ignores_documentation_but_not_code(
     trainer.write_text(documented, encoding="utf-8")
     assert experiments.code_version() == original
     trainer.write_text(source.replace("maxlen=100", "maxlen=101"), encoding="utf-8")
-    assert experiments.code_version() != original
+    changed = experiments.code_version()
+    assert changed != original
+    study = copy / "studies" / "pool_training.py"  # a subpackage's code counts too
+    study.write_text(study.read_text(encoding="utf-8") + "\nX = 1\n", encoding="utf-8")
+    assert experiments.code_version() != changed

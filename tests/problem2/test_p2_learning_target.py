@@ -12,6 +12,7 @@ import torch
 from analysis.runs import load_policy
 from grid_maps import TARGET
 from multi_agent_env import MultiAgentEnv
+from replay import sample_batch
 from train_config import TrainConfig
 
 from tests.conftest import load_problem_module
@@ -93,7 +94,7 @@ def test_own_arrival_term_enters_each_agents_target_and_not_the_team_reward(
     trainer = trained(tmp_path, target_potential=4.0, potential_credit="agent")
     info = {"on_target": np.array([[True, False]])}
     assert trainer.learning_rewards(np.array([-0.1]), info, observations([False, False]))[0] == -0.1
-    batch, _ = trainer.sample(64)
+    batch = sample_batch(trainer.replay_buffer, 64, trainer.cfg.gamma)
     centre = trainer.env.obs_window**2 // 2
     batch.obs[0, :10, centre] = TARGET  # A on the target in the first rows' s, B in some s'
     batch.next_obs[1, 5:15, centre] = TARGET
@@ -117,7 +118,7 @@ def test_without_a_potential_the_rewards_pass_unchanged(tmp_path: Path) -> None:
 def test_advantage_learning_lowers_the_target_by_alpha_times_the_action_gap(tmp_path: Path) -> None:
     trainer = trained(tmp_path, advantage_learning=0.6, advantage_learning_ramp=0.5)
     assert trainer.progress() == 1.0 and trainer.advantage_learning_alpha() == pytest.approx(0.6)
-    batch, _ = trainer.sample(32)
+    batch = sample_batch(trainer.replay_buffer, 32, trainer.cfg.gamma)
     _, delta_al, q_taken = trainer.td_loss(batch)
     trainer.cfg.advantage_learning = 0.0
     _, delta_plain, q_plain = trainer.td_loss(batch)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import os
 import subprocess
 import sys
@@ -168,9 +169,10 @@ print(os.environ.get("MKL_CBWR"), digest)
 """
 
 
-def test_importing_models_sets_mkl_reproducibility_before_the_first_product() -> None:
-    """A process that imports models before its first matrix product computes the bytes of
-    a process started with MKL_CBWR=AVX2, whatever the CPU's own code path."""
+def test_reproducible_matmul_gives_the_bytes_of_mkl_cbwr_avx2_and_import_sets_nothing() -> None:
+    """A process that calls models.use_reproducible_matmul() before its first matrix product
+    computes the bytes of a process started with MKL_CBWR=AVX2, whatever the CPU's own code
+    path; importing models alone changes no environment variable."""
     problem2 = str(Path(__file__).resolve().parents[2] / "problem2")
     clean = {k: v for k, v in os.environ.items() if k != "MKL_CBWR"}
 
@@ -185,6 +187,30 @@ def test_importing_models_sets_mkl_reproducibility_before_the_first_product() ->
         )
         return result.stdout.strip()
 
-    by_import = run("import models", clean)
-    assert by_import.startswith("AVX2 ")
-    assert by_import == run("", clean | {"MKL_CBWR": "AVX2"})
+    assert run("import models", clean).startswith("None ")
+    called = run("import models\nmodels.use_reproducible_matmul()", clean)
+    assert called.startswith("AVX2 ")
+    assert called == run("", clean | {"MKL_CBWR": "AVX2"})
+
+
+def test_every_entry_point_asks_for_reproducible_matmul_first() -> None:
+    """Each module of problem2 that runs as a program calls use_reproducible_matmul() as
+    the first statement of its main()."""
+    root = Path(__file__).resolve().parents[2] / "problem2"
+    programs = [
+        p
+        for p in sorted(root.rglob("*.py"))
+        if "results" not in p.parts and '__name__ == "__main__"' in p.read_text(encoding="utf-8")
+    ]
+    assert len(programs) >= 10
+    for path in programs:
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        main = next(n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "main")
+        body = [
+            s
+            for s in main.body
+            if not (isinstance(s, ast.Expr) and isinstance(s.value, ast.Constant))
+        ]
+        first = body[0]
+        assert isinstance(first, ast.Expr) and isinstance(first.value, ast.Call), path
+        assert getattr(first.value.func, "id", None) == "use_reproducible_matmul", path

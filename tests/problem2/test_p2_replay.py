@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from replay import TRANSITION_FIELDS
+from replay import TRANSITION_FIELDS, sample_batch
 from replay_buffer import PrioritizedReplayBuffer, ReplayBuffer, SumTree
 from rollout import NStepWindow
 
@@ -30,34 +30,44 @@ def test_ring_buffer_keeps_the_latest_transitions() -> None:
     states = np.concatenate([buffer.sample(5)[0] for _ in range(40)])
     assert set(states[:, 0].tolist()) == {2.0, 3.0, 4.0, 5.0, 6.0}
     buffer.push_batch(**batch_of(100, 12))  # more than the capacity: keep the last five
-    assert set(buffer.get(np.arange(5))["state_A"][:, 0].tolist()) == {107, 108, 109, 110, 111}
+    assert set(buffer.fields_at(np.arange(5))[0][:, 0].tolist()) == {107, 108, 109, 110, 111}
 
 
 @pytest.mark.parametrize("buffer_class", [ReplayBuffer, PrioritizedReplayBuffer])
-def test_sampled_rows_unpack_to_the_stored_fields(buffer_class: type) -> None:
-    """sample_rows gathers whole rows that unpack to what get() reads at the drawn slots,
-    also after pushes across the end of the ring; new rows get the largest priority (PER);
-    A's and B's observations sit side by side in a row (the learner views them as one
-    block)."""
+def test_a_pair_of_agent_fields_is_one_array_with_the_agent_axis_first(buffer_class: type) -> None:
+    """get() reads, at the drawn slots, A's and B's fields as one (2, B, ...) block (what
+    both agents' networks take in one pass), also after pushes across the end of the ring;
+    new slots get the largest priority (PER)."""
     batch = batch_of(0, 7)
     buffer = buffer_class(5, seed=0)
     assert np.array_equal(buffer.push_batch(**{k: v[:4] for k, v in batch.items()}), range(4))
     assert np.array_equal(buffer.push_batch(**{k: v[4:] for k, v in batch.items()}), [4, 0, 1])
-    rows, weights, indices = buffer.sample_rows(5)
-    assert rows.shape == (5, max(c.stop for c in buffer.layout.values()))
-    stored, expected = buffer.unpack(rows), buffer.get(indices)
-    for name in buffer.field_names:
-        assert np.array_equal(stored[name], expected[name]), name
-        assert stored[name].dtype == expected[name].dtype, name
-    assert set(buffer.get(np.arange(5))["state_A"][:, 0].tolist()) == {2, 3, 4, 5, 6}
-    for first, second in (("state_A", "state_B"), ("next_state_A", "next_state_B")):
-        assert buffer.layout[first].stop == buffer.layout[second].start
-    out = np.zeros_like(rows)
-    assert buffer.sample_rows(5, out)[0] is out
+    indices = buffer.sample_indices(5)
+    stored = buffer.get(indices)
+    assert stored["state"].shape == (2, 5, 11) and stored["action"].shape == (2, 5)
+    assert stored["action"].dtype == np.int64 and stored["state"].dtype == np.float32
+    fields = dict(zip(TRANSITION_FIELDS, buffer.fields_at(indices), strict=True))
+    for name in ("state", "next_state", "action", "comm"):
+        assert np.array_equal(stored[name][0], fields[f"{name}_A"]), name
+        assert np.array_equal(stored[name][1], fields[f"{name}_B"]), name
+    assert np.array_equal(stored["reward"], fields["reward"])
+    assert set(buffer.fields_at(np.arange(5))[0][:, 0].tolist()) == {2, 3, 4, 5, 6}
     if buffer_class is PrioritizedReplayBuffer:
         assert np.allclose(buffer._tree.values(np.arange(5)), 1.0)  # max priority 1 so far
-    else:
-        assert np.array_equal(weights, np.ones(5, np.float32))
+
+
+def test_a_learner_batch_holds_the_sampled_transitions_as_tensors() -> None:
+    """sample_batch: (2, B, D) observations, (2, B) actions, and for transitions pushed by
+    hand the discount γ (1 − done), no previous observation, last_obs = obs."""
+    buffer = ReplayBuffer(50, seed=3)
+    buffer.push_batch(**batch_of(0, 30))
+    batch = sample_batch(buffer, 16, gamma=0.9)
+    ids = batch.obs[0, :, 0].long()
+    assert torch.equal(batch.obs[1, :, 0], ids.float() + 1)
+    assert torch.equal(batch.actions[0], ids % 5) and batch.actions.dtype == torch.int64
+    assert torch.allclose(batch.discount, 0.9 * (1.0 - (ids % 2 == 0).float()))
+    assert torch.equal(batch.last_obs, batch.obs) and not batch.has_prev.any()
+    assert not batch.prev_obs.any()
 
 
 def test_sampled_fields_stay_aligned_and_typed() -> None:
@@ -101,11 +111,11 @@ def test_extras_are_stored_beside_the_required_fields() -> None:
     partner = batch["state_B"] * 10
     buffer.push_batch(**batch, prev_partner_obs_A=partner, prev_partner_obs_B=partner + 1)
     assert buffer.field_names == (*TRANSITION_FIELDS, "prev_partner_obs_A", "prev_partner_obs_B")
-    rows, weights, indices = buffer.sample_rows(8)
-    fields = buffer.unpack(rows)
-    assert np.array_equal(fields["prev_partner_obs_A"], fields["state_B"] * 10)
-    assert np.array_equal(fields["prev_partner_obs_B"], fields["state_B"] * 10 + 1)
-    assert np.array_equal(weights, np.ones(8, dtype=np.float32)) and indices.shape == (8,)
+    indices = buffer.sample_indices(8)
+    stored = buffer.get(indices)
+    assert np.array_equal(stored["prev_partner_obs"][0], stored["state"][1] * 10)
+    assert np.array_equal(stored["prev_partner_obs"][1], stored["state"][1] * 10 + 1)
+    assert indices.shape == (8,)
     assert len(buffer.sample(4)) == 10  # sample() keeps to the ten required arrays
     single = batch_of(50, 1)
     buffer.push(

@@ -163,15 +163,14 @@ def test_the_skeletons_target_update_means_hard_copies() -> None:
     assert_hard_copy_after(trainer, 7)
 
 
-@pytest.mark.parametrize(("target_update", "prioritized"), [(0, False), (5, False), (0, True)])
+@pytest.mark.parametrize("target_update", [0, 5])
 def test_no_target_update_while_the_buffer_holds_less_than_a_batch(
-    tmp_path: Path, target_update: int, prioritized: bool
+    tmp_path: Path, target_update: int
 ) -> None:
     cfg = TrainConfig(
         mode="full",
         batch_size=32,
         target_update=target_update,
-        prioritized=prioritized,
         output_dir=str(tmp_path),
     )
     trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)

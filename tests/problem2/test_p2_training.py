@@ -12,6 +12,7 @@ import pytest
 import torch
 from analysis.baselines import random_policy
 from analysis.runs import load_map
+from batch import experiments
 from batch.cli import build_parser, parse_config
 from models import AgentDQN, DuelingDQN, PairedQNetworks
 from multi_agent_env import MultiAgentEnv
@@ -21,7 +22,6 @@ from train_config import TrainConfig
 from tests.conftest import load_problem_module, weights_of
 
 train = load_problem_module("problem2", "train")  # problem1 has a train.py too
-experiments = load_problem_module("problem2", "experiments")
 
 TINY = [
     "--total_steps",
