@@ -18,6 +18,7 @@ from studies.one_step.agents import (
     augment,
     memory_mask,
 )
+from studies.one_step.panel import memory_pair_policy
 from train_config import TrainConfig
 from vector_env import VectorMultiAgentEnv
 
@@ -166,3 +167,19 @@ def test_tiny_batch_trains_exports_and_reproduces_bytes(tmp_path: Path) -> None:
     q, message, h_next = model(torch.rand(3, 11), torch.tensor([-1, 0, 4]), h)
     assert h.shape == (3, 11) and q.shape == (3, 5) and message.shape == (3, 1)
     assert h_next.shape == (3, 11) and ((message >= 0) & (message <= 1)).all()
+
+
+def test_panel_policy_is_memory_policy_when_greedy_and_explores_with_the_panel_draws(
+    tmp_path: Path,
+) -> None:
+    trainer = make_trainer("comm", tmp_path)
+    agents = tuple(torch.jit.load(str(p)) for p in trainer.save_models(tmp_path / "m"))
+    runs = {}
+    for name, epsilon in (("greedy", 0.0), ("eps", 0.5)):
+        env = VectorMultiAgentEnv(30, grid=trainer.env.grid)
+        runs[name] = run_episodes(env, memory_pair_policy(agents, env, epsilon), 30, seed=9)
+    env = VectorMultiAgentEnv(30, grid=trainer.env.grid)
+    reference = run_episodes(env, memory_policy(agents, env, 0.0), 30, seed=9)
+    np.testing.assert_array_equal(runs["greedy"].lengths, reference.lengths)
+    np.testing.assert_array_equal(runs["greedy"].returns, reference.returns)
+    assert not np.array_equal(runs["eps"].returns, reference.returns)
