@@ -9,7 +9,7 @@ DEV_STAMP     := $(VENV)/.dev-installed
 REPORT_STAMP  := $(VENV)/.report-installed
 
 .PHONY: all problem1 problem2 studies beyond p2-baselines p2-main p2-studies p2-panel p2-map-pool \
-	p2-stability p2-memory p2-memory-levers p2-evaluate report \
+	p2-stability p2-memory p2-memory-levers p2-memory-panel p2-evaluate report \
 	test lint \
 	bench clean
 
@@ -54,7 +54,7 @@ p2-evaluate: $(RUNTIME_STAMP)
 ## The studies of the default task: the main experiment, the reward study (both rewards,
 ## 3 modes x 10 seeds, checkpoints chosen by the trained reward's own return, and the exact
 ## DP), messages without DIAL, then their evaluation, and the map panel (it evaluates itself).
-studies: p2-main p2-studies p2-evaluate p2-panel
+studies: p2-main p2-studies p2-evaluate p2-panel p2-memory-panel
 
 ## Beyond the default task (about 69 min on 2 cores): agents on a pool of generated maps, the stability
 ## study, agents with memory and the levers tried on them (each writes its own results;
@@ -80,6 +80,12 @@ p2-panel: $(RUNTIME_STAMP)
 			--overwrite --output_dir $(P2_STUDIES)/panel/map$$map || exit 1; done
 	cd problem2 && $(PY) -m studies.panel
 	cd problem2 && $(PY) -m studies.panel_long
+
+## Does one step of memory change what the channels are worth? The panel's 12 maps x 4 modes x
+## training seeds 641-645 with one-step memory agents (studies/one_step), the main recipe, tested
+## against the memoryless panel (about 40 min on 2 cores (estimated); reads the map panel).
+p2-memory-panel: $(RUNTIME_STAMP)
+	cd problem2 && $(PY) -m studies.one_step.panel --train
 
 ## Agents trained on a pool of 2000 generated maps, tested on 40 held-out maps (about 5 min).
 p2-map-pool: $(RUNTIME_STAMP)

@@ -1,0 +1,1 @@
+"""One-step memory agents: the main recipe with the previous observation and move as input."""
