@@ -326,7 +326,7 @@ class MultiAgentTrainer:
         buffer holds fewer than ``batch_size`` transitions)."""
         if len(self.replay_buffer) < batch_size:
             return 0.0
-        batch = sample_batch(self.replay_buffer, batch_size, self.cfg.gamma)
+        batch = self.sample(batch_size)
         loss, _, q_taken = self.td_loss(batch)
         self.optimizer.zero_grad()
         loss.backward()
@@ -339,6 +339,10 @@ class MultiAgentTrainer:
         self._losses.append(loss_value)
         self._mean_qs.append(float(q_taken.mean()))
         return loss_value
+
+    def sample(self, batch_size: int) -> TransitionBatch:
+        """A uniform batch of ``batch_size`` transitions from the replay buffer."""
+        return sample_batch(self.replay_buffer, batch_size, self.cfg.gamma)
 
     def after_backward(self) -> None:
         """Called between ``backward()`` and the gradient clipping (a study may change the

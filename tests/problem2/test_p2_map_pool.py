@@ -14,8 +14,7 @@ from analysis.map_sets import HELD_OUT_MAP_SEEDS, training_maps, validation_maps
 from grid_maps import DEFAULT_MAP_SEED, generate_map
 from multi_agent_env import MultiAgentEnv
 from studies import map_pool_study
-from train_config import TrainConfig
-from trainer import MultiAgentTrainer
+from studies.pool_training import PoolConfig, PooledVectorEnv, PoolTrainer
 from vector_env import VectorMultiAgentEnv
 
 MAPS = np.stack([generate_map((10, 10), seed) for seed in (0, 1, 2, 3)])
@@ -54,7 +53,7 @@ def test_each_copy_obeys_its_own_map_like_a_single_map_env() -> None:
 
 
 def test_pool_draws_a_map_per_episode_reproducibly() -> None:
-    env = VectorMultiAgentEnv(64, map_pool=MAPS, max_steps=5, seed=9)
+    env = PooledVectorEnv(64, map_pool=MAPS, max_steps=5, seed=9)
     first_maps = env.map_indices
     assert set(first_maps.tolist()) == {0, 1, 2, 3}
     seen = {tuple(first_maps)}
@@ -65,7 +64,7 @@ def test_pool_draws_a_map_per_episode_reproducibly() -> None:
     rows, cols = env.positions[..., 0], env.positions[..., 1]
     assert (env.grids[env.map_indices[:, None], rows, cols] == 0).all()  # free cells of own map
     obs = env.reset(seed=4)
-    again = VectorMultiAgentEnv(64, map_pool=MAPS, max_steps=5, seed=123)
+    again = PooledVectorEnv(64, map_pool=MAPS, max_steps=5, seed=123)
     assert np.array_equal(again.reset(seed=4), obs)
     assert np.array_equal(again.map_indices, env.map_indices)
 
@@ -85,18 +84,18 @@ def test_several_maps_refuse_single_map_questions_and_bad_stacks() -> None:
         _ = env.target_position
     with pytest.raises(ValueError, match="n_envs"):
         VectorMultiAgentEnv(3, grids=MAPS)
-    with pytest.raises(ValueError, match="at most one"):
-        VectorMultiAgentEnv(4, grid=MAPS[0], map_pool=MAPS)
+    with pytest.raises(ValueError, match="not both"):
+        PooledVectorEnv(4, grid=MAPS[0], map_pool=MAPS)
     broken = MAPS.copy()
     broken[2, 0, 1] = broken[2, 1, 0] = 1  # corner (0, 0) cut off
     with pytest.raises(ValueError, match=r"map_pool\[2\].*not connected"):
-        VectorMultiAgentEnv(4, map_pool=broken)
+        PooledVectorEnv(4, map_pool=broken)
 
 
 def test_coverage_counts_cells_seen_for_the_first_time() -> None:
     grid = np.zeros((5, 5), dtype=np.int64)
     grid[4, 4] = 2
-    env = VectorMultiAgentEnv(1, grids=grid[None], track_coverage=True, auto_reset=False)
+    env = PooledVectorEnv(1, grids=grid[None], track_coverage=True, auto_reset=False)
     env.reset(positions=np.array([[[0, 0], [0, 4]]]))
     right, stay, left = 3, 4, 2
     newly = [
@@ -122,8 +121,8 @@ def test_pools_are_deterministic_distinct_and_disjoint_from_the_test_maps() -> N
 
 
 # ---------------------------------------------------------------------- trainer
-def pool_trainer(tmp_path: Path, **settings) -> MultiAgentTrainer:
-    cfg = TrainConfig(
+def pool_trainer(tmp_path: Path, **settings) -> PoolTrainer:
+    cfg = PoolConfig(
         mode="full",
         seed=3,
         total_steps=10**9,
@@ -136,10 +135,10 @@ def pool_trainer(tmp_path: Path, **settings) -> MultiAgentTrainer:
         output_dir=str(tmp_path),
         **{"target_potential": 0.0} | settings,  # the study's recipe: no arrival term
     ).validate()
-    return MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
+    return PoolTrainer(MultiAgentEnv(seed=641), cfg)
 
 
-def collect(trainer: MultiAgentTrainer, steps: int) -> list[np.ndarray]:
+def collect(trainer: PoolTrainer, steps: int) -> list[np.ndarray]:
     rollout, learned = trainer.rollout, []
     for _ in range(steps):
         actions, messages = trainer.act(rollout.obs, 1.0, trainer.rng, True)
@@ -171,12 +170,12 @@ def test_shared_gradient_is_the_sum_of_both_agents(tmp_path: Path) -> None:
     summed over the agent axis (one parameter used by both agents)."""
     trainer = pool_trainer(tmp_path, share_weights=True, comm_noise=0.0, max_grad_norm=1e9)
     collect(trainer, 10)
-    batch, _ = trainer.sample(32)
+    batch = trainer.sample(32)
     trainer.online.zero_grad(set_to_none=True)
     loss, _, _ = trainer.td_loss(batch)
     loss.backward()
     expected = [p.grad.sum(dim=0) for p in trainer.online.parameters()]
-    trainer.sample = lambda batch_size: (batch, np.arange(batch_size))  # the same batch
+    trainer.sample = lambda batch_size: batch  # the same batch
     stepped = []
     trainer.optimizer.step = lambda **_: stepped.append(
         [p.grad.clone() for p in trainer.online.parameters()]
@@ -202,7 +201,7 @@ def test_shaping_adds_the_bonuses_only_to_what_is_learned(tmp_path: Path) -> Non
 
 
 # ---------------------------------------------------------------------- the study
-def tiny_study_config(**settings) -> TrainConfig:
+def tiny_study_config(**settings) -> PoolConfig:
     tiny = dict(
         total_steps=1024,
         num_envs=16,
@@ -217,7 +216,7 @@ def tiny_study_config(**settings) -> TrainConfig:
         workers=1,
         max_steps=12,
     )
-    return TrainConfig(**map_pool_study.RECIPE | tiny | settings).validate()
+    return PoolConfig(**map_pool_study.RECIPE | tiny | settings).validate()
 
 
 def test_tiny_study_end_to_end_and_reproducible(tmp_path: Path) -> None:
@@ -309,5 +308,5 @@ def test_study_flags_become_the_recipe_with_seeds_from_zero(tmp_path: Path) -> N
         ["--num_seeds", "2", "--map_pool", "1", "--mode", "full", "--output_dir", str(tmp_path)]
     )
     assert cfg.run_seeds() == [0, 1] and cfg.map_pool == 1 and cfg.run_modes() == ["full"]
-    assert cfg.num_seeds == TrainConfig().num_seeds  # the count is stored as the seed list
+    assert cfg.num_seeds == PoolConfig().num_seeds  # the count is stored as the seed list
     assert args.episodes_per_map == 500

@@ -25,7 +25,7 @@ from studies.memory.agents import (
 )
 from studies.memory.held_out_tests import memory_cic, memory_states
 from studies.memory.learner import CURRICULUM_END, CurriculumEnv, Levers, RecurrentTrainer
-from train_config import TrainConfig
+from studies.pool_training import PoolConfig, PooledVectorEnv
 from vector_env import VectorMultiAgentEnv
 
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.\\w+` is deprecated:DeprecationWarning")
@@ -96,7 +96,7 @@ def test_memory_policy_resets_the_state_at_every_episode_start() -> None:
 
 
 def small_trainer(tmp_path: Path, mode: str, **settings: object) -> RecurrentTrainer:
-    cfg = TrainConfig(
+    cfg = PoolConfig(
         **{
             "total_steps": 2_000,
             "num_envs": 8,
@@ -231,14 +231,14 @@ def test_curriculum_starts_that_share_of_episodes_with_one_agent_on_the_target()
     np.testing.assert_array_equal(obs[starts][..., 4] == TARGET, on)  # what each agent sees
     np.testing.assert_array_equal(env._visited[starts], on)  # no arrival reward for that
     env.start_on_target = 0.0  # the plain environment again: no draw, same episodes
-    plain = VectorMultiAgentEnv(50, map_pool=training_maps(30), seed=9)
+    plain = PooledVectorEnv(50, map_pool=training_maps(30), seed=9)
     same = CurriculumEnv(50, map_pool=training_maps(30), seed=9)
     np.testing.assert_array_equal(plain.reset(), same.reset())
 
 
 def test_curriculum_share_falls_to_zero_at_its_end(tmp_path: Path) -> None:
     plain = small_trainer(tmp_path, "full", total_steps=800)
-    assert type(plain.rollout.env) is VectorMultiAgentEnv  # without the lever
+    assert type(plain.rollout.env) is PooledVectorEnv  # without the lever
     levers = Levers(curriculum=0.6)
     taught = RecurrentTrainer(MultiAgentEnv(max_steps=12), plain.cfg, "full", levers)
     assert isinstance(taught.rollout.env, CurriculumEnv)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from experiments import run_experiments
+from batch.experiments import run_experiments
 from rollout import run_episodes
 from studies.memory.agents import memory_policy
 from studies.one_step.agents import (

@@ -80,7 +80,7 @@ def jit_load(path: Path) -> torch.jit.ScriptModule:
 @pytest.mark.parametrize("dueling", [False, True])
 def test_paired_networks_match_standalone_agents(dueling: bool) -> None:
     torch.manual_seed(0)
-    paired = PairedQNetworks(11, 32, 5, dueling=dueling)
+    paired = PairedQNetworks(11, 32, 5, DuelingDQN if dueling else AgentDQN)
     x = torch.randn(2, 7, 11)
     q_values, logits = paired(x)
     for index in range(2):
@@ -89,7 +89,7 @@ def test_paired_networks_match_standalone_agents(dueling: bool) -> None:
         agent_q, agent_message = agent(x[index])
         torch.testing.assert_close(agent_q, q_values[index])
         torch.testing.assert_close(agent_message, torch.sigmoid(logits[index]))
-    copy = PairedQNetworks(11, 32, 5, dueling=dueling)
+    copy = PairedQNetworks(11, 32, 5, DuelingDQN if dueling else AgentDQN)
     copy.load_agents([paired.agent(0), paired.agent(1)])
     torch.testing.assert_close(weights_of(copy), weights_of(paired))
 
@@ -135,13 +135,12 @@ def test_starter_flags_and_defaults() -> None:
             "--seeds",
             "1",
             "2",
-            "--dueling",
             "--grid-size",
             "6",
         ]
     )
     assert (dashed.num_episodes, dashed.batch_size, dashed.epsilon_decay) == (7, 8, 0.3)
-    assert dashed.run_seeds() == [1, 2] and dashed.dueling and dashed.grid_size == 6
+    assert dashed.run_seeds() == [1, 2] and dashed.grid_size == 6
     assert parse_config(["--mode", "comm,full"]).run_modes() == ["comm", "full"]
 
 
@@ -193,7 +192,7 @@ def test_time_limit_is_not_terminal_for_learning() -> None:
 def message_head_gradient(trainer: train.MultiAgentTrainer) -> torch.Tensor:
     """Gradient of the TD loss with respect to agent B's message head. B's message enters
     only A's input, so this is the gradient of receiver A's loss."""
-    batch, _ = trainer.sample(64)
+    batch = trainer.sample(64)
     trainer.online.zero_grad(set_to_none=True)
     loss, _, _ = trainer.td_loss(batch)
     loss.backward()
@@ -307,18 +306,21 @@ def test_full_agents_learn_on_a_small_map(tmp_path: Path) -> None:
     assert success >= 0.5 and success >= 5 * random_success, (success, random_success)
 
 
-def test_dueling_and_prioritized_variants_train(tmp_path: Path) -> None:
-    trainer = filled_trainer("full", "--dueling", "--prioritized", "--output_dir", str(tmp_path))
-    assert isinstance(trainer.network_A, DuelingDQN)
-    for _ in range(3):
-        assert np.isfinite(trainer.update_networks(32))
-    batch, slots = trainer.sample(32)
-    loss, td_errors, q_taken = trainer.td_loss(batch)
-    assert td_errors.shape == q_taken.shape == (2, 32) and slots.shape == (32,)
-    # train() feeds the TD errors back as priorities.
-    cfg = tiny_config("--mode", "full", "--prioritized", "--output_dir", str(tmp_path))
-    trainer = train.MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
-    trainer.train()
-    stored = len(trainer.replay_buffer)
-    priorities = trainer.replay_buffer._tree.values(np.arange(stored))
-    assert trainer.updates > 0 and len(np.unique(priorities)) > 1
+@pytest.mark.parametrize(
+    ("flag", "owner"),
+    [
+        (["--map_pool", "5"], "studies.map_pool_study"),
+        (["--share-weights"], "studies.map_pool_study"),
+        (["--coverage_bonus", "0.1"], "studies.map_pool_study"),
+        (["--dueling"], "DuelingDQN remains"),
+        (["--prioritized"], "PrioritizedReplayBuffer remains"),
+    ],
+)
+def test_flags_that_left_the_core_name_where_they_went(
+    flag: list[str], owner: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        train.main([*flag, "--output_dir", "unused"])
+    assert exit_info.value.code == 2
+    error = capsys.readouterr().err
+    assert f"{flag[0]} is not a train.py flag any more" in error and owner in error

@@ -32,8 +32,9 @@ import torch
 from analysis.baselines import int_list
 from analysis.episodes import explore_by_step, model_policy
 from analysis.stats import BOOTSTRAP_RESAMPLES, CONFIDENCE, mode_contrasts, seed_statistics
-from batch_io import ProgressLine, make_console_safe, run_jobs, write_json_atomic
-from experiments import run_experiments
+from batch.experiments import run_experiments
+from batch.plumbing import ProgressLine, make_console_safe, run_jobs, write_json_atomic
+from models import use_reproducible_matmul
 from rollout import EVAL_EPSILON, EVAL_SEED, PolicyFn, run_episodes
 from train_config import TrainConfig, available_cores
 from vector_env import VectorMultiAgentEnv
@@ -292,6 +293,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train (with ``--train``) and evaluate the maps, then write the study's files."""
+    use_reproducible_matmul()  # before the first matrix product
     make_console_safe()
     args = parse_args(argv)
     seconds: dict[str, float] = {}

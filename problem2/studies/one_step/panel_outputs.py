@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 from analysis.plots import save_figure
-from batch_io import temporary_path_for
+from batch.plumbing import temporary_path_for
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
