@@ -4,8 +4,9 @@
     python train.py --mode full --seeds 641 642 --total_steps 200000 --output_dir my_run
     python train.py --help               # every hyperparameter, with its meaning and range
 
-The algorithm is in ``trainer.py`` (:class:`MultiAgentTrainer` and :func:`apply_observation_mask`,
-re-exported here), the hyperparameters in ``train_config.py``, the batch in ``experiments.py``.
+The algorithm is in ``trainer.py`` (:class:`MultiAgentTrainer` and
+:func:`apply_observation_mask`, re-exported here), the hyperparameters in ``train_config.py``,
+the batch in ``batch/experiments.py`` and the flags in ``batch/cli.py``.
 """
 
 from __future__ import annotations

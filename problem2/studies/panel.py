@@ -119,7 +119,7 @@ def map_effects(successes: dict[str, dict[str, np.ndarray]]) -> dict[str, dict]:
 def evaluate_map(
     map_seed: int, models_dir: str, num_episodes: int, progress: Any = None
 ) -> tuple[dict, float]:
-    """The panel's entry of one map and the seconds it took (a ``batch_io.run_jobs`` job)."""
+    """The panel's entry of one map and the seconds it took (a ``batch.plumbing.run_jobs`` job)."""
     torch.set_num_threads(1)  # batches of ~1000 rows: one thread, and the two workers apart
     start = time.perf_counter()
     experiment = read_experiment(f"panel/map{map_seed}", Path(models_dir))

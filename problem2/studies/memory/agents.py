@@ -146,11 +146,14 @@ def memory_policy(
     env: VectorMultiAgentEnv,
     epsilon: float = 0.0,
     seed: int = 0,
+    draws: PolicyFn | None = None,
 ) -> PolicyFn:
     """A :data:`rollout.PolicyFn` of two memory agents (anything with ``initial_state`` and
     ``forward(obs, prev_action, h)``, e.g. loaded TorchScript files) on the copies of ``env``:
     a copy's state is reset wherever ``env.steps`` is 0 (an episode start). ε-greedy with its
-    own generator; the action fed back is the one taken."""
+    own generator, or with exploration drawn outside: ``draws`` returns actions (N, 2), the
+    random move where an agent explores now and −1 elsewhere. The action fed back is the one
+    taken."""
     rng = np.random.default_rng(seed)
     n = env.n_envs
     states = [agent.initial_state(n) for agent in agents]
@@ -168,7 +171,10 @@ def memory_policy(
                 q_values.append(q.numpy())
                 messages.append(message[:, 0].numpy())
         actions = np.stack(q_values, axis=1).argmax(axis=-1)
-        if epsilon > 0:
+        if draws is not None:
+            drawn, _ = draws(obs, positions)
+            actions = np.where(drawn >= 0, drawn, actions)
+        elif epsilon > 0:
             explore = rng.random(actions.shape) < epsilon
             actions = np.where(explore, rng.integers(0, NUM_ACTIONS, actions.shape), actions)
         previous.copy_(torch.from_numpy(actions))

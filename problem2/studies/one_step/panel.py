@@ -39,6 +39,7 @@ from rollout import EVAL_EPSILON, EVAL_SEED, PolicyFn, run_episodes
 from train_config import TrainConfig, available_cores
 from vector_env import VectorMultiAgentEnv
 
+from studies.memory.agents import memory_policy
 from studies.one_step.agents import OneStepMemoryTrainer
 from studies.one_step.panel_outputs import format_table, plot_panel, write_csv
 from studies.panel import EFFECT_WORDS, EFFECTS, PANEL_DIR, PANEL_MAP_SEEDS
@@ -76,30 +77,10 @@ def exploration(env: VectorMultiAgentEnv, epsilon: float, seed: int = EVAL_SEED)
 def memory_pair_policy(
     agents: tuple[torch.nn.Module, torch.nn.Module], env: VectorMultiAgentEnv, epsilon: float
 ) -> PolicyFn:
-    """Two memory-contract agents on ``env`` (as ``studies.memory.agents.memory_policy``,
-    with the panel's exploration draws): states reset where ``env.steps`` is 0, the move
-    made (explored or greedy) fed back as the next ``prev_action``."""
-    n, draws = env.n_envs, exploration(env, epsilon)
-    states = [agent.initial_state(n) for agent in agents]
-    previous = torch.full((n, 2), -1, dtype=torch.int64)
-
-    def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        starting = torch.from_numpy(env.steps == 0)
-        observations = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32))
-        greedy, messages = [], []
-        with torch.inference_mode():
-            for i, agent in enumerate(agents):
-                h = torch.where(starting[:, None], agent.initial_state(n), states[i])
-                prev = torch.where(starting, -1, previous[:, i])
-                q, message, states[i] = agent(observations[:, i], prev, h)
-                greedy.append(q.numpy().argmax(axis=-1))
-                messages.append(message[:, 0].numpy())
-        drawn, _ = draws(obs, positions)
-        actions = np.where(drawn >= 0, drawn, np.stack(greedy, axis=1))
-        previous.copy_(torch.from_numpy(actions))
-        return actions, np.stack(messages, axis=1)
-
-    return act
+    """Two memory-contract agents on ``env`` (``studies.memory.agents.memory_policy``) with
+    the panel's exploration draws: the move made (explored or greedy) is fed back as the
+    next ``prev_action``."""
+    return memory_policy(agents, env, draws=exploration(env, epsilon))
 
 
 def successes(
@@ -206,7 +187,7 @@ def map_entry(
 def evaluate_map(
     map_seed: int, output_dir: str, panel_dir: str, episodes: int, progress: Any = None
 ) -> tuple[dict, float]:
-    """The memory panel's entry of one map and its seconds (a ``batch_io.run_jobs`` job)."""
+    """The memory panel's entry of one map and its seconds (a ``batch.plumbing.run_jobs`` job)."""
     torch.set_num_threads(1)
     start = time.perf_counter()
     models_dir = Path(output_dir) / f"map{map_seed}" / "agent_models"
