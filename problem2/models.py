@@ -234,11 +234,17 @@ def export_policy(
     mask_tensor = torch.from_numpy(np.array(mask, dtype=np.float32)).flatten()  # a copy
     if mask_tensor.numel() != input_dim:
         raise ValueError(f"mask has {mask_tensor.numel()} elements; the network takes {input_dim}")
+    return save_scripted(MaskedPolicy(exportable_copy(network), mask_tensor), path)
+
+
+def exportable_copy(network: nn.Module) -> nn.Module:
+    """A CPU copy of ``network`` in eval mode without gradients, its ``nn.Linear`` layers
+    replaced by :class:`_ExportLinear` (byte-stable TorchScript); ``network`` is untouched."""
     exported = copy.deepcopy(network).cpu().eval().requires_grad_(False)
     for name, child in list(exported.named_children()):
         if isinstance(child, nn.Linear):
             setattr(exported, name, _ExportLinear(child))
-    return save_scripted(MaskedPolicy(exported, mask_tensor), path)
+    return exported
 
 
 def save_scripted(module: nn.Module, path: str | Path) -> Path:

@@ -17,13 +17,12 @@ contract of ``shared/INTERFACES.md``: ``h`` holds the masked previous observatio
 
 from __future__ import annotations
 
-import copy
 from pathlib import Path
 
 import numpy as np
 import torch
 from grid_maps import NUM_ACTIONS, check_step
-from models import MessagingQNetwork, _ExportLinear, observation_mask, save_scripted
+from models import MessagingQNetwork, exportable_copy, observation_mask, save_scripted
 from torch import nn
 from torch.nn import functional as F
 from trainer import MultiAgentTrainer
@@ -113,10 +112,7 @@ class OneStepMemoryPolicy(nn.Module):
 
     def __init__(self, network: MessagingQNetwork, mode: str) -> None:
         super().__init__()
-        network = copy.deepcopy(network).cpu().eval().requires_grad_(False)
-        for name, child in list(network.named_children()):
-            if isinstance(child, nn.Linear):  # byte-stable files (models._ExportLinear)
-                setattr(network, name, _ExportLinear(child))
+        network = exportable_copy(network)
         self.network = network
         raw_dim = (network.hidden.weight.shape[1] - NUM_ACTIONS) // 2
         self.register_buffer("mask", torch.from_numpy(memory_mask(mode, raw_dim)))
