@@ -4,9 +4,10 @@
     python train.py --mode full --seeds 641 642 --total_steps 200000 --output_dir my_run
     python train.py --help               # every hyperparameter, with its meaning and range
 
-The algorithm is in ``trainer.py`` (:class:`MultiAgentTrainer` and
-:func:`apply_observation_mask`, re-exported here), the hyperparameters in ``train_config.py``,
-the batch in ``batch/experiments.py`` and the flags in ``batch/cli.py``.
+The algorithm is in ``trainer.py`` (:class:`MultiAgentTrainer`, re-exported here), the
+hyperparameters in ``train_config.py``, the batch in ``batch/experiments.py`` and the flags in
+``batch/cli.py``; :func:`apply_observation_mask` is the course's masking function (the learner
+applies the same mask, ``models.observation_mask``, inside its networks' inputs).
 """
 
 from __future__ import annotations
@@ -15,14 +16,27 @@ import gc
 import sys
 from typing import Any
 
+import numpy as np
+import torch
 from batch.cli import parse_config_or_exit
 from batch.experiments import INTERRUPTED, check_output_dir, output_root, run_experiments
 from batch.plumbing import make_console_safe
-from models import use_reproducible_matmul
+from models import observation_mask, use_reproducible_matmul
 from train_config import TrainConfig
-from trainer import EVAL_EPSILON, MultiAgentTrainer, apply_observation_mask
+from trainer import EVAL_EPSILON, MultiAgentTrainer
 
 __all__ = ["EVAL_EPSILON", "MultiAgentTrainer", "TrainConfig", "apply_observation_mask", "main"]
+
+
+def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndarray | torch.Tensor:
+    """Zero the inputs that ablation ``mode`` hides (``models.MASKED_INPUTS``):
+    ``independent`` the message and the distance (elements 9 and 10 for a 3 x 3 window),
+    ``comm`` the distance, ``distance`` the message, ``full`` none. Any leading shape
+    (..., obs_dim)."""
+    mask = observation_mask(mode, obs.shape[-1])
+    if isinstance(obs, torch.Tensor):
+        return obs * torch.tensor(mask)
+    return np.asarray(obs, dtype=np.float32) * mask
 
 
 def main(argv: list[str] | None = None) -> list[dict[str, Any]]:

@@ -65,17 +65,6 @@ LOG_FIELDS = (
 )
 
 
-def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndarray | torch.Tensor:
-    """Zero the inputs that ablation ``mode`` hides (``models.MASKED_INPUTS``):
-    ``independent`` the message and the distance (elements 9 and 10 for a 3 x 3 window),
-    ``comm`` the distance, ``distance`` the message, ``full`` none. Any leading shape
-    (..., obs_dim)."""
-    mask = observation_mask(mode, obs.shape[-1])
-    if isinstance(obs, torch.Tensor):
-        return obs * torch.tensor(mask)
-    return np.asarray(obs, dtype=np.float32) * mask
-
-
 def config_from(args: Any) -> TrainConfig:
     """A TrainConfig as given (validated by its maker: the CLI, ``run_experiments``), or
     one built and validated from any namespace, e.g. the course skeleton's (``mode``
