@@ -107,6 +107,7 @@ class ReplayBuffer:
             str, np.ndarray
         ] = {}  # stored name -> (capacity, ...) or (2, capacity, ...)
         self._fields: tuple[str, ...] = ()  # the fields pushed, required ones first
+        self._paired: set[str] = set()  # stored names of the A/B pairs (agent axis first)
         self._size = 0
         self._next_slot = 0
 
@@ -176,6 +177,7 @@ class ReplayBuffer:
         """Fix the fields by those of the first push, with their per-transition shapes."""
         extras = sorted(set(arrays) - set(TRANSITION_FIELDS))
         self._fields = (*TRANSITION_FIELDS, *extras)
+        self._paired = {stored_name(name) for name in self._fields if name.endswith(("_A", "_B"))}
         for name in self._fields:
             dtype = np.int64 if stored_name(name) == "action" else np.float32
             agents = (2,) if name.endswith(("_A", "_B")) else ()
@@ -216,12 +218,9 @@ class ReplayBuffer:
         """Every stored array at slots ``indices`` (B,), by stored name: a pair of agent
         fields (2, B, ...) (``state``, ``action``...), the others (B, ...)."""
         return {
-            name: np.take(values, indices, axis=1 if name in self._pairs() else 0)
+            name: np.take(values, indices, axis=1 if name in self._paired else 0)
             for name, values in self._arrays.items()
         }
-
-    def _pairs(self) -> set[str]:
-        return {stored_name(name) for name in self._fields if name.endswith(("_A", "_B"))}
 
     def sample(self, batch_size: int) -> tuple[np.ndarray, ...]:
         """Uniform sample with replacement: the ten required arrays in interface order,
