@@ -93,12 +93,15 @@ class PooledVectorEnv(VectorMultiAgentEnv):
             self._copy_base[rows] = drawn * self._cells_per_map
             self._copy_target[rows] = self._target_flat[drawn]
 
+    def _build_lookup_tables(self) -> None:
+        super()._build_lookup_tables()
+        if self.track_coverage:  # the cells each copy has seen in its episode, and how many
+            self._seen = np.zeros((self.n_envs, self._cells_per_map), dtype=bool)
+            self._seen_count = np.zeros(self.n_envs, dtype=np.int64)
+
     def _start_episodes(self, rows: np.ndarray, flat: np.ndarray | None = None) -> None:
         super()._start_episodes(rows, flat)
         if self.track_coverage:
-            if not hasattr(self, "_seen"):
-                self._seen = np.zeros((self.n_envs, self._cells_per_map), dtype=bool)
-                self._seen_count = np.zeros(self.n_envs, dtype=np.int64)
             self._seen[rows] = self._off_grid
             self._mark_seen(rows)
 
