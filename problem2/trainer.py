@@ -343,6 +343,7 @@ class MultiAgentTrainer:
 
             y = R + d · Q_target(s', argmax_a Q_online(s', a))        (Double DQN)
                 − α (max_b Q_target(s, b) − Q_target(s, a))           (advantage learning)
+                + the agent's own arrival term             (:meth:`own_arrival_term`)
 
         R = r_t + γ r_{t+1} + ... + γ^(k-1) r_{t+k-1} is the k-step return (k <= n, fewer
         where the episode ends first) and d = γ^k, 0 where both agents reached the target
@@ -352,15 +353,15 @@ class MultiAgentTrainer:
         obs, next_obs = batch.obs * self.mask, batch.next_obs * self.mask
         if self.dial:
             obs, next_obs = self.splice_messages(batch, obs, next_obs)
-        alpha, n = self.advantage_learning_alpha(), obs.shape[1]
+        alpha, batch_size = self.advantage_learning_alpha(), obs.shape[1]
         with torch.no_grad():
             best_next = self.online(next_obs)[0].max(dim=-1, keepdim=True).indices
             # One target-network pass over s' and, for advantage learning, s: (2, B or 2B, 5).
             q_target = self.target(torch.cat([next_obs, obs], dim=1) if alpha > 0 else next_obs)[0]
-            next_value = q_target[:, :n].gather(-1, best_next)[..., 0]
+            next_value = q_target[:, :batch_size].gather(-1, best_next)[..., 0]
             target = batch.reward + batch.discount * next_value + self.own_arrival_term(batch)
             if alpha > 0:
-                q_at_s = q_target[:, n:]
+                q_at_s = q_target[:, batch_size:]
                 taken = q_at_s.gather(-1, batch.actions.unsqueeze(-1))[..., 0]
                 target = target - alpha * (q_at_s.max(dim=-1).values - taken)
         q_taken = self.online(obs)[0].gather(-1, batch.actions.unsqueeze(-1))[..., 0]
