@@ -76,17 +76,17 @@ def build_parser(cls: type = TrainConfig) -> argparse.ArgumentParser:
         else:
             options["type"] = type(default)
         parser.add_argument(*names, **options)
-    if cls is TrainConfig:
-        for name in MOVED_FLAGS:
-            spellings = {name, name.replace("_", "-")}
-            flags = [f"--{s}" for s in sorted(spellings)] + [f"--no-{s}" for s in sorted(spellings)]
-            parser.add_argument(
-                *flags,
-                dest=name,
-                action=MovedFlag,
-                default=argparse.SUPPRESS,
-                help=argparse.SUPPRESS,
-            )
+    fields = {spec.name for spec in dataclasses.fields(cls)}
+    for name in (name for name in MOVED_FLAGS if name not in fields):  # a subclass may own it
+        spellings = {name, name.replace("_", "-")}
+        flags = [f"--{s}" for s in sorted(spellings)] + [f"--no-{s}" for s in sorted(spellings)]
+        parser.add_argument(
+            *flags,
+            dest=name,
+            action=MovedFlag,
+            default=argparse.SUPPRESS,
+            help=argparse.SUPPRESS,
+        )
     return parser
 
 
