@@ -152,7 +152,6 @@ class VectorMultiAgentEnv:
         self._start_cells_by_map = order + (np.arange(n_maps) * cells_per_map)[:, None]
         self._start_cells = self._start_cells_by_map[0, : self._free_counts[0]]
         self._target_flat = np.flatnonzero(self._cell_values == TARGET)  # (M,)
-        self._off_grid = (padded[0] == OFF_GRID).ravel()  # (P,) padding cells
 
     def _to_flat(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Flat cell indices within one padded map (add ``_copy_base`` for copy i's map)."""

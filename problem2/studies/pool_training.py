@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 from analysis.map_sets import MAX_POOL_SIZE, training_maps, validation_maps
-from grid_maps import check_grid_stack
+from grid_maps import OFF_GRID, check_grid_stack
 from settings import boolean, int_in, number_in, setting
 from train_config import TrainConfig
 from trainer import MultiAgentTrainer
@@ -96,6 +96,8 @@ class PooledVectorEnv(VectorMultiAgentEnv):
     def _build_lookup_tables(self) -> None:
         super()._build_lookup_tables()
         if self.track_coverage:  # the cells each copy has seen in its episode, and how many
+            # Padding cells count as seen from the start: only grid cells can be new.
+            self._off_grid = self._cell_values[: self._cells_per_map] == OFF_GRID  # (P,)
             self._seen = np.zeros((self.n_envs, self._cells_per_map), dtype=bool)
             self._seen_count = np.zeros(self.n_envs, dtype=np.int64)
 
