@@ -259,9 +259,11 @@ class VectorMultiAgentEnv:
         return self._rows_cols(self._move(flat, actions))
 
     def _observe(self, flat: np.ndarray, messages: np.ndarray) -> np.ndarray:
-        """Observations (n, 2, obs_dim) float32 from flat positions and sent messages (n, 2)."""
+        """Observations (n, 2, w² + 2) float32 from flat positions and sent messages (n, 2):
+        the patch, the partner's message, the distance (``obs_dim`` unless a subclass feeds
+        its agents more)."""
         patch_size = self.obs_window**2
-        obs = np.empty((flat.shape[0], 2, self.obs_dim), dtype=np.float32)
+        obs = np.empty((flat.shape[0], 2, patch_size + 2), dtype=np.float32)
         obs[:, :, :patch_size] = np.take(self._patches, flat, axis=0)
         obs[:, :, patch_size] = messages[:, ::-1]  # each agent receives its partner's
         if self._distances is not None:

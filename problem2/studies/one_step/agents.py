@@ -63,11 +63,6 @@ class OneStepMemoryEnv(VectorMultiAgentEnv):
         super().__init__(*args, **kwargs)  # calls reset(), which creates the memory arrays
         self.obs_dim = 2 * self.raw_dim + NUM_ACTIONS
 
-    def _observe(self, flat: np.ndarray, messages: np.ndarray) -> np.ndarray:
-        """The raw observations (n, 2, raw_dim): the core fills the first raw_dim elements
-        of an (n, 2, obs_dim) array, the rest is cut off."""
-        return super()._observe(flat, messages)[..., : self.raw_dim]
-
     def _start_episodes(self, rows: np.ndarray, flat: np.ndarray | None = None) -> None:
         super()._start_episodes(rows, flat)
         self._prev_raw[rows] = 0.0
