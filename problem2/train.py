@@ -4,16 +4,18 @@
     python train.py --mode full --seeds 641 642 --total_steps 200000 --output_dir my_run
     python train.py --help               # every hyperparameter, with its meaning and range
 
-The algorithm is in ``trainer.py`` (:class:`MultiAgentTrainer`, re-exported here), the
-hyperparameters in ``train_config.py``, the batch in ``batch/experiments.py`` and the flags in
-``batch/cli.py``; :func:`apply_observation_mask` is the course's masking function (the learner
-applies the same mask, ``models.observation_mask``, inside its networks' inputs).
+The algorithm is ``trainer.DQNTrainer``; :class:`MultiAgentTrainer` adds the course
+skeleton's interface to it. The hyperparameters are in ``train_config.py``, the batch in
+``batch/experiments.py`` and the flags in ``batch/cli.py``; :func:`apply_observation_mask`
+is the course's masking function (the learner applies the same mask,
+``models.observation_mask``, inside its networks' inputs).
 """
 
 from __future__ import annotations
 
 import gc
 import sys
+from dataclasses import fields
 from typing import Any
 
 import numpy as np
@@ -21,9 +23,11 @@ import torch
 from batch.cli import parse_config_or_exit
 from batch.experiments import INTERRUPTED, check_output_dir, output_root, run_experiments
 from batch.plumbing import make_console_safe
+from grid_maps import NUM_ACTIONS
 from models import observation_mask, use_reproducible_matmul
+from rollout import EVAL_SEED, Rollout
 from train_config import TrainConfig
-from trainer import EVAL_EPSILON, MultiAgentTrainer
+from trainer import EVAL_EPSILON, DQNTrainer
 
 __all__ = ["EVAL_EPSILON", "MultiAgentTrainer", "TrainConfig", "apply_observation_mask", "main"]
 
@@ -37,6 +41,104 @@ def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndar
     if isinstance(obs, torch.Tensor):
         return obs * torch.tensor(mask)
     return np.asarray(obs, dtype=np.float32) * mask
+
+
+def config_from(args: Any) -> TrainConfig:
+    """A TrainConfig as given, or one built and validated from any namespace, e.g. the course
+    skeleton's (``mode`` missing or ``all`` means ``full``; output under ``./results``;
+    unknown attributes and ``grid_size`` ignored: the map comes from the environment)."""
+    if isinstance(args, TrainConfig):
+        return args
+    known = {f.name for f in fields(TrainConfig)}
+    settings = {k: v for k, v in vars(args).items() if k in known and v is not None}
+    if settings.get("mode", "all") == "all":
+        settings["mode"] = "full"
+    settings.setdefault("output_dir", "results")  # like the skeleton
+    settings.pop("grid_size", None)  # the trainer trains on env's grid
+    return TrainConfig(**settings).validate()
+
+
+class MultiAgentTrainer(DQNTrainer):
+    """The course skeleton's trainer: :class:`trainer.DQNTrainer` built from a bare
+    ``argparse.Namespace`` (or a TrainConfig) with ``select_action``, ``train_episode``,
+    ``evaluate`` and ``network_A`` / ``network_B`` on top."""
+
+    def __init__(self, env: Any, args: Any) -> None:
+        super().__init__(env, config_from(args))
+        self._episode_rollout: Rollout | None = None  # the one-environment rollout
+
+    @property
+    def network_A(self) -> torch.nn.Module:
+        """Agent A's network as a standalone AgentDQN (a snapshot)."""
+        return self.online.agent(0)
+
+    @property
+    def network_B(self) -> torch.nn.Module:
+        return self.online.agent(1)
+
+    def select_action(
+        self, state: np.ndarray, network: torch.nn.Module, epsilon: float
+    ) -> tuple[int, float]:
+        """ε-greedy action and message of one agent: ``state`` (obs_dim,) raw observation."""
+        masked = torch.as_tensor(state, dtype=torch.float32) * self.mask
+        with torch.no_grad():
+            q_values, comm = network(masked.unsqueeze(0))
+        action = int(q_values.argmax(dim=1).item())
+        if self.rng.random() < epsilon:
+            action = int(self.rng.integers(NUM_ACTIONS))
+        return action, float(comm.item())
+
+    def train_episode(self) -> tuple[float, bool]:
+        """Play one episode in a single environment, learning as ``train`` does but with one
+        gradient update per env step (the skeleton's loop); returns (episode_reward, success)."""
+        if self._episode_rollout is None:
+            self._episode_rollout = self.start_rollout(1, self.seed + 1)
+        while True:
+            returns, successes, finished = self.collect(self._episode_rollout)
+            if self.env_steps >= self.cfg.learning_starts:
+                self.update_networks(self.cfg.batch_size)
+            self.update_schedules(int(finished.sum()))
+            if len(returns):
+                return float(returns[0]), bool(successes[0])
+
+    def evaluate(
+        self, num_episodes: int = 10, epsilon: float = 0.0, seed: int = EVAL_SEED
+    ) -> tuple[float, float]:
+        """(mean reward, success rate) over fixed episodes (the test episodes by default),
+        under the reward the trainer learns from (unshaped)."""
+        summary = self.evaluation_summary(num_episodes, epsilon, seed)
+        return summary["mean_return"], summary["success_rate"]
+
+    def store(
+        self,
+        rollout: Rollout,
+        actions: np.ndarray,
+        messages: np.ndarray,
+        rewards: np.ndarray,
+        next_obs: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+    ) -> None:
+        """Into a buffer first filled by hand with the course's ten fields, push one-step
+        transitions of those fields; otherwise the core's n-step transitions."""
+        buffer = self.replay_buffer
+        if not len(buffer) or "discount" in buffer.field_names:
+            return super().store(
+                rollout, actions, messages, rewards, next_obs, terminated, truncated
+            )
+        obs = rollout.obs
+        buffer.push_batch(
+            state_A=obs[:, 0],
+            state_B=obs[:, 1],
+            action_A=actions[:, 0],
+            action_B=actions[:, 1],
+            comm_A=messages[:, 0],
+            comm_B=messages[:, 1],
+            reward=rewards,
+            next_state_A=next_obs[:, 0],
+            next_state_B=next_obs[:, 1],
+            done=terminated,
+        )
 
 
 def main(argv: list[str] | None = None) -> list[dict[str, Any]]:

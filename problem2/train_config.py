@@ -62,50 +62,48 @@ class TrainConfig:
 
     mode: str = setting(
         "all",
-        "independent (patch only), comm (+ message), full (+ distance), all (these three), or a "
-        "list: comm full; distance (patch + distance, no message) only when listed",
+        "independent (patch), comm (+ message), full (+ distance), all (these three) or a list; "
+        "distance (patch + distance) only when listed",
         mode_list(TRAINABLE_MODES),
         items=(str, "MODE"),
     )
     seed: int = setting(
         641,
-        "first training seed; runs use seed, seed + 1, ... unless --seeds is given",
+        "first training seed (seed, seed + 1, ... unless --seeds is given)",
         int_in(0, MAX_SEED),
     )
     num_seeds: int = setting(10, "number of training seeds per mode (1 or more)", int_in(1))
     seeds: list[int] = setting(
         [],
-        "explicit training seeds, distinct, 0..2^32-1 (overrides --seed and --num_seeds)",
+        "explicit distinct training seeds (override --seed and --num_seeds)",
         distinct_ints(0, MAX_SEED),
         items=(int, "SEED"),
     )
     map_seed: int = setting(
         641,
-        "seed (0..2^32-1) of the map (obstacles and target) that every run trains on",
+        "seed of the map (obstacles and target) every run trains on",
         int_in(0, MAX_SEED),
     )
     grid_size: int | list[int] = setting(
         10,
-        "grid side (--grid_size 10) or rows and columns (--grid_size 10 10), each 3..100",
+        "grid side (--grid_size 10) or rows and columns (--grid_size 10 10)",
         one_or_two_ints(3, MAX_GRID_SIDE),
         items=(int, "N"),
     )
     max_steps: int = setting(
         50,
-        "episode time limit (a cut-off, not a terminal state: the TD target bootstraps through it)",
+        "episode time limit (a cut-off: the TD target bootstraps through it)",
         int_in(1),
     )
     reward_mode: str = setting(
         "goal",
-        "reward learned from (vector_env.team_rewards): goal (+10 when both stand on the "
-        "target, -0.1 otherwise; with --target_potential the arrival term), per_step (the "
-        "assignment's table: +2 on every step with exactly one agent on the target) or arrival "
-        "(+2 on a step on which an agent first reaches it); one team value per step",
+        "team reward learned from (vector_env.team_rewards): goal (+10 / -0.1), per_step "
+        "(the assignment's +10 / +2 / -0.1) or arrival (+2 on an agent's first arrival)",
         one_of("goal", "per_step", "arrival"),
     )
     total_steps: int = setting(
         300_000,
-        "environment steps per run, summed over the parallel environments (1 or more)",
+        "environment steps per run, summed over the parallel environments",
         int_in(1),
     )
     num_episodes: int = setting(
@@ -120,15 +118,13 @@ class TrainConfig:
     )
     lr_end_factor: float = setting(
         0.03,
-        "final learning rate as a fraction of lr (0..1), reached linearly at the end of the run",
+        "final learning rate as a fraction of lr, reached linearly at the end",
         number_in(0.0, 1.0),
     )
     gamma: float = setting(0.99, "discount factor, in [0, 1)", number_in(0.0, 1.0, high_open=True))
     n_step: int = setting(
         3,
-        "steps of reward in each TD target (1 or more): r_t + ... + gamma^(n-1) r_(t+n-1) + "
-        "gamma^n max Q(s_(t+n)), fewer where the episode ends first (no bootstrap at a "
-        "terminal)",
+        "steps of reward in each TD target (fewer where the episode ends first)",
         int_in(1),
     )
     epsilon_start: float = setting(1.0, "initial exploration rate, in [0, 1]", number_in(0.0, 1.0))
@@ -137,27 +133,26 @@ class TrainConfig:
     )
     epsilon_decay: float = setting(
         0.0,
-        "the course skeleton's multiplicative factor in (0, 1): after each finished episode "
-        "epsilon <- max(epsilon_end, epsilon * factor) (e.g. 0.995); 0 = linear schedule",
+        "the skeleton's factor in (0, 1): epsilon <- max(epsilon_end, epsilon * factor) after "
+        "each finished episode; 0 = linear schedule",
         decay_factor,
     )
     epsilon_fraction: float = setting(
         0.3,
-        "with --epsilon_decay 0: fraction (0, 1] of the run over which epsilon falls linearly",
+        "with --epsilon_decay 0: fraction of the run over which epsilon falls linearly",
         number_in(0.0, 1.0, low_open=True),
     )
     hidden_dim: int = setting(128, "units of the hidden layer", int_in(1))
     target_update: int = setting(
         0,
-        "gradient updates (not episodes, not env steps) between hard copies of the online "
-        "networks into the target networks, the skeleton's rule; 0 = a soft update at "
-        "--target_tau",
+        "gradient updates (not episodes, not env steps) between hard copies into the target "
+        "networks; 0 = a soft update at --target_tau",
         int_in(0),
     )
     target_tau: float = setting(
         0.005,
-        "with --target_update 0: after every gradient update each target network moves this "
-        "fraction (0, 1] of the way to its online network",
+        "with --target_update 0: fraction of the way to the online network each target "
+        "network moves after every update",
         number_in(0.0, 1.0, low_open=True),
     )
     buffer_size: int = setting(
@@ -165,7 +160,7 @@ class TrainConfig:
     )
     learning_starts: int = setting(
         5_000,
-        "env steps collected before the first update: batch_size or more, below total_steps",
+        "env steps collected before the first update (at least batch_size)",
         int_in(0),
     )
     updates_per_step: int = setting(
@@ -178,15 +173,13 @@ class TrainConfig:
     )
     advantage_learning: float = setting(
         0.95,
-        "alpha in [0, 1) of advantage learning (Bellemare et al. 2016): the TD target minus "
-        "alpha (max_b Q_target(s, b) - Q_target(s, a)), which widens the gaps between the "
-        "actions' values so that estimation noise no longer decides the greedy action; 0 = "
-        "plain Double DQN",
+        "alpha of advantage learning (Bellemare et al. 2016): the target minus alpha (max_b "
+        "Q(s, b) - Q(s, a)) widens the action gaps; 0 = plain Double DQN",
         number_in(0.0, 1.0, high_open=True),
     )
     advantage_learning_ramp: float = setting(
         0.3,
-        "fraction (0, 1] of the run over which alpha rises linearly from 0 to advantage_learning",
+        "fraction of the run over which alpha rises linearly from 0",
         number_in(0.0, 1.0, low_open=True),
     )
     comm_learning: str = setting(
@@ -196,12 +189,12 @@ class TrainConfig:
     )
     comm_noise: float = setting(
         1.0,
-        "standard deviation (finite, >= 0) of the Gaussian noise on the message logit (DIAL)",
+        "standard deviation of the Gaussian noise on the message logit (DIAL)",
         number_in(0.0, math.inf, high_open=True),
     )
     eval_interval: int = setting(
         10_000,
-        "environment steps between evaluations on the fixed validation episodes",
+        "environment steps between evaluations on the validation episodes",
         int_in(1),
     )
     eval_episodes: int = setting(
@@ -209,57 +202,52 @@ class TrainConfig:
     )
     keep_best: bool = setting(
         True,
-        "end with the weights that scored best in the periodic evaluations, not the last ones",
+        "end with the weights that scored best in the periodic evaluations",
         boolean,
     )
     select_by: str = setting(
         "steps",
-        "what picks checkpoints and the best seed on validation episodes (means of the greedy "
-        "and epsilon = 0.05 results): steps (the fewest steps to success among those within "
-        "one point of the best success rate), success (success rate) or return (trained "
-        "reward)",
+        "what picks checkpoints and the best seed (greedy and epsilon = 0.05 means): steps "
+        "(fewest steps within one point of the best success), success or return",
         one_of(*SELECT_BY),
     )
     final_eval_episodes: int = setting(
         1000,
-        "validation episodes of the selection evaluation at the end of each run, which picks "
-        "the best seed per mode (reported success rates come from evaluate.py)",
+        "validation episodes of the final evaluation that picks the best seed per mode",
         int_in(1),
     )
     save_freq: int = setting(
         0,
-        "environment steps between intermediate model saves (0: save at the end only)",
+        "environment steps between intermediate model saves (0: at the end only)",
         int_in(0),
     )
     output_dir: str = setting(
         str(DEFAULT_OUTPUT_DIR),
-        "folder for agent_models/ and training_logs/; a relative path is relative to the "
-        "current folder (default: problem2/results, wherever you run from)",
+        "folder for agent_models/ and training_logs/ (default: problem2/results)",
         folder,
     )
     workers: int = setting(
         available_cores,
-        "parallel training processes (default: the available cores; at most one per run)",
+        "parallel training processes (default: the available cores)",
         int_in(1),
     )
     overwrite: bool = setting(
         False,
-        "replace a batch with other settings in --output_dir (see the rule below)",
+        "replace a batch with other settings in --output_dir",
         boolean,
     )
 
     # ------------------------------------------------ the reward only learning sees
     target_potential: float = setting(
         4.0,
-        "potential-based shaping for learning only (Ng et al. 1999), >= 0: adds gamma * "
-        "Phi(s') - Phi(s) with Phi = this value per agent on the target (an arrival pays about "
-        "+Phi, a departure costs Phi; 0 = none)",
+        "potential-based shaping seen by learning only (Ng et al. 1999): Phi per agent on the "
+        "target, adding gamma Phi(s') - Phi(s); 0 = none",
         number_in(0.0, math.inf, high_open=True),
     )
     potential_credit: str = setting(
         "agent",
-        "whose arrivals the arrival term pays each agent for: agent (its own only, a potential "
-        "per agent; Devlin and Kudenko 2011) or team (both agents', one team value per step)",
+        "whose arrivals the shaping pays each agent for: agent (its own; Devlin and Kudenko "
+        "2011) or team (both agents')",
         one_of("agent", "team"),
     )
 

@@ -1,21 +1,17 @@
 """Independent DQN for two agents that must meet on a target, with a learned message.
 
-Each agent has its own network (a Q head over 5 moves and a sigmoid message head) and
-learns from a shared replay of joint transitions with a Huber TD loss summed over both
-agents, target networks, a Double-DQN target and gradient clipping. The message is trained
-DIAL-style, through the receiver's TD loss (:meth:`~MultiAgentTrainer.splice_messages`).
-The ablation modes differ only in the input mask (``models.observation_mask``), applied
-wherever a network sees an observation: acting, both TD passes, the exported models.
+Each agent has its own network (a Q head over 5 moves and a sigmoid message head) and learns
+from a shared replay of joint transitions: a Huber TD loss summed over both agents, target
+networks, a Double-DQN target, gradient clipping. The message is trained DIAL-style, through
+the receiver's TD loss (:meth:`DQNTrainer.splice_messages`). The ablation modes differ only
+in the input mask (``models.observation_mask``) applied wherever a network sees an observation.
 
-:meth:`MultiAgentTrainer.train` is the loop, in DQN order: act (ε-greedy) → step → store
-(:meth:`~MultiAgentTrainer.collect`) → update (:meth:`~MultiAgentTrainer.update_networks`:
-``td_loss`` → ``backward()`` → clip → Adam → target sync) → schedules → evaluate and log.
-The course skeleton's interface (``select_action``, ``train_episode``, ``evaluate``,
-``network_A`` / ``network_B``, a bare ``argparse.Namespace`` as ``args``) closes the class.
-Study extensions subclass it through its hooks (``vector_env_class`` and
-:meth:`~MultiAgentTrainer.make_vector_env`, :meth:`~MultiAgentTrainer.learning_rewards`,
-``network_class``, :meth:`~MultiAgentTrainer.input_mask`,
-:meth:`~MultiAgentTrainer.after_backward`, :meth:`~MultiAgentTrainer.save_models`).
+:meth:`DQNTrainer.train` is the loop, in DQN order: act (ε-greedy) → step → store → update
+(``td_loss`` → ``backward()`` → clip → Adam → target sync) → schedules → evaluate and log.
+The course skeleton's interface is ``train.MultiAgentTrainer``, a subclass; studies subclass
+through the hooks ``vector_env_class``, ``network_class``, :meth:`~DQNTrainer.make_vector_env`,
+:meth:`~DQNTrainer.learning_rewards`, :meth:`~DQNTrainer.input_mask`, :meth:`~DQNTrainer.sample`,
+:meth:`~DQNTrainer.after_backward` and :meth:`~DQNTrainer.save_models`.
 """
 
 from __future__ import annotations
@@ -24,9 +20,9 @@ import csv
 import math
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 import torch
@@ -65,32 +61,6 @@ LOG_FIELDS = (
 )
 
 
-def config_from(args: Any) -> TrainConfig:
-    """A TrainConfig as given (validated by its maker: the CLI, ``run_experiments``), or
-    one built and validated from any namespace, e.g. the course skeleton's (``mode``
-    missing or ``all`` means ``full``; output under ``./results``; unknown attributes and
-    ``grid_size`` ignored: the map comes from the environment)."""
-    if isinstance(args, TrainConfig):
-        return args
-    known = {f.name for f in fields(TrainConfig)}
-    settings = {k: v for k, v in vars(args).items() if k in known and v is not None}
-    if settings.get("mode", "all") == "all":
-        settings["mode"] = "full"
-    settings.setdefault("output_dir", "results")  # like the skeleton
-    settings.pop("grid_size", None)  # the trainer trains on env's grid
-    return TrainConfig(**settings).validate()
-
-
-class MapSource(Protocol):
-    """What the trainer reads of its environment (a ``MultiAgentEnv`` or a one-map
-    ``VectorMultiAgentEnv``): the map (H, W), its size, the window and the time limit."""
-
-    grid: np.ndarray
-    grid_size: tuple[int, int]
-    obs_window: int
-    max_steps: int
-
-
 @dataclass
 class Checkpoint:
     """The weights of one periodic evaluation and their results on the validation episodes
@@ -102,20 +72,19 @@ class Checkpoint:
     state: dict[str, torch.Tensor]
 
 
-class MultiAgentTrainer:
+class DQNTrainer:
     """Trains agents A and B of one ablation mode with one seed.
 
     Args:
-        env: the environment (:class:`MapSource`) whose map, window and time limit training
-            uses.
-        args: a :class:`TrainConfig`, or any namespace with some of its fields (the course
-            skeleton's works); ``mode`` one of independent, comm, distance, full (missing
-            or ``all`` means full); the run's seed is ``args.seed``; outputs go to
-            ``<args.output_dir>/agent_models`` and ``/training_logs`` (default ``results``).
+        env: what training reads of the environment: its ``grid`` (H, W), ``obs_window`` and
+            ``max_steps`` (a ``MultiAgentEnv`` or a one-map ``VectorMultiAgentEnv``).
+        cfg: the run's settings, already validated; ``cfg.mode`` one of independent, comm,
+            distance, full; outputs go to ``<cfg.output_dir>/agent_models`` and
+            ``/training_logs``.
     """
 
-    def __init__(self, env: MapSource, args: Any) -> None:
-        cfg = self.cfg = config_from(args)
+    def __init__(self, env: Any, cfg: TrainConfig) -> None:
+        self.cfg = cfg
         if cfg.mode not in TRAINABLE_MODES:
             raise ValueError(f"a trainer trains one mode, got mode={cfg.mode!r}")
         self.mode, self.seed, self.env = cfg.mode, cfg.seed, env
@@ -277,9 +246,8 @@ class MultiAgentTrainer:
     ) -> None:
         """Push the joint transitions this step of the N episodes completes
         (:class:`rollout.NStepWindow`), each with both agents' observations one step before
-        its start (DIAL); ``next_obs`` is the true one also where an episode was cut off.
-        Into a buffer first filled by hand (the ten fields) it pushes one-step transitions."""
-        buffer, obs = self.replay_buffer, rollout.obs
+        its start (DIAL); ``next_obs`` is the true one also where an episode was cut off."""
+        obs = rollout.obs
         one_step = {
             "state_A": obs[:, 0],
             "state_B": obs[:, 1],
@@ -288,15 +256,6 @@ class MultiAgentTrainer:
             "comm_A": messages[:, 0],
             "comm_B": messages[:, 1],
         }
-        if len(buffer) and "discount" not in buffer.field_names:
-            buffer.push_batch(
-                **one_step,
-                reward=rewards,
-                next_state_A=next_obs[:, 0],
-                next_state_B=next_obs[:, 1],
-                done=terminated,
-            )
-            return
         start = one_step | {
             "prev_state_A": rollout.prev_obs[:, 0],
             "prev_state_B": rollout.prev_obs[:, 1],
@@ -305,7 +264,7 @@ class MultiAgentTrainer:
         finished = terminated | truncated
         complete = rollout.window.add(start, rewards, next_obs, obs, terminated, finished)
         if len(complete["reward"]):  # the environment checked the actions and messages
-            buffer.push_batch(validate=False, **complete)
+            self.replay_buffer.push_batch(validate=False, **complete)
 
     # ------------------------------------------------------------------ 4. update
     def update_networks(self, batch_size: int) -> float:
@@ -528,49 +487,3 @@ class MultiAgentTrainer:
             export_policy(self.online.agent(i), self.mode, folder / f"{self.name}_agent_{a}.pt")
             for i, a in enumerate("AB")
         ]
-
-    # ------------------------------------------------ the course skeleton's interface
-    _episode_rollout: Any = None  # the one-environment rollout of train_episode()
-
-    @property
-    def network_A(self) -> torch.nn.Module:
-        """Agent A's network as a standalone AgentDQN / DuelingDQN (a snapshot)."""
-        return self.online.agent(0)
-
-    @property
-    def network_B(self) -> torch.nn.Module:
-        return self.online.agent(1)
-
-    def select_action(
-        self, state: np.ndarray, network: torch.nn.Module, epsilon: float
-    ) -> tuple[int, float]:
-        """ε-greedy action and message of one agent: ``state`` (obs_dim,) raw observation."""
-        masked = torch.as_tensor(state, dtype=torch.float32) * self.mask
-        with torch.no_grad():
-            q_values, comm = network(masked.unsqueeze(0))
-        action = int(q_values.argmax(dim=1).item())
-        if self.rng.random() < epsilon:
-            action = int(self.rng.integers(NUM_ACTIONS))
-        return action, float(comm.item())
-
-    def train_episode(self) -> tuple[float, bool]:
-        """Play one episode in a single environment, learning as ``train`` does but with one
-        gradient update per env step (the skeleton's loop); returns (episode_reward, success)."""
-        if self._episode_rollout is None:
-            self._episode_rollout = self.start_rollout(1, self.seed + 1)
-        while True:
-            returns, successes, finished = self.collect(self._episode_rollout)
-            if self.env_steps >= self.cfg.learning_starts:
-                self.update_networks(self.cfg.batch_size)
-            self.update_schedules(int(finished.sum()))
-            if len(returns):
-                return float(returns[0]), bool(successes[0])
-
-    def evaluate(
-        self, num_episodes: int = 10, epsilon: float = 0.0, seed: int = EVAL_SEED
-    ) -> tuple[float, float]:
-        """(mean reward, success rate) over fixed episodes (the test episodes by default),
-        under the reward the trainer learns from (unshaped); on the validation maps when
-        training on a map pool."""
-        summary = self.evaluation_summary(num_episodes, epsilon, seed)
-        return summary["mean_return"], summary["success_rate"]

@@ -23,7 +23,7 @@ import torch
 from grid_maps import generate_map
 from rollout import EVAL_EPSILON, VALIDATION_SEED, select_best
 from train_config import DEFAULT_OUTPUT_DIR, SettingError, TrainConfig
-from trainer import LAST_WEIGHTS, MultiAgentTrainer
+from trainer import LAST_WEIGHTS, DQNTrainer
 from vector_env import VectorMultiAgentEnv
 
 from batch.plumbing import (
@@ -141,7 +141,7 @@ def train_one(
     seed: int,
     models_dir: Path,
     logs_dir: Path,
-    trainer_class: type[MultiAgentTrainer] = MultiAgentTrainer,
+    trainer_class: type[DQNTrainer] = DQNTrainer,
     progress: Any = None,
 ) -> dict[str, Any]:
     """Train one (mode, seed) into ``models_dir`` / ``logs_dir``, run its selection evaluation
@@ -182,7 +182,7 @@ def train_one(
 
 # ------------------------------------------------------------------------------ the batch
 def run_experiments(
-    cfg: TrainConfig, trainer_class: type[MultiAgentTrainer] = MultiAgentTrainer
+    cfg: TrainConfig, trainer_class: type[DQNTrainer] = DQNTrainer
 ) -> list[dict[str, Any]]:
     """Train every (mode, seed) of ``cfg`` in ``cfg.workers`` processes into a staging
     folder, then install it into ``cfg.output_dir`` (whole or not at all). Each run is a

@@ -5,7 +5,7 @@ and memory studies use, none of them part of the assignment's recipe.
   size, validation maps, parameter sharing, the coverage and on-target bonuses).
 * :class:`PooledVectorEnv`: the vectorised environment whose copies draw a map from the pool
   at every episode start, and which can count the grid cells the agents have seen.
-* :class:`PoolTrainer`: the core :class:`~trainer.MultiAgentTrainer` on such environments
+* :class:`PoolTrainer`: the core :class:`~trainer.DQNTrainer` on such environments
   (validated on other generated maps), with the bonuses added to the learning reward and,
   with ``share_weights``, one set of weights for both agents.
 """
@@ -21,7 +21,7 @@ from analysis.map_sets import MAX_POOL_SIZE, training_maps, validation_maps
 from grid_maps import OFF_GRID, check_grid_stack
 from settings import boolean, int_in, number_in, setting
 from train_config import TrainConfig
-from trainer import MultiAgentTrainer
+from trainer import DQNTrainer
 from vector_env import VectorMultiAgentEnv
 
 
@@ -124,7 +124,7 @@ class PooledVectorEnv(VectorMultiAgentEnv):
         return newly_seen
 
 
-class PoolTrainer(MultiAgentTrainer):
+class PoolTrainer(DQNTrainer):
     """The core learner on a map pool (``cfg`` a :class:`PoolConfig`), with the pool's
     shaping and optional parameter sharing."""
 

@@ -14,7 +14,7 @@ from typing import Any
 
 from batch.plumbing import remove_stale_temporaries, write_json_atomic
 from train_config import check_setting
-from trainer import MultiAgentTrainer
+from trainer import DQNTrainer
 
 
 @contextmanager
@@ -57,13 +57,13 @@ def check_field(name: str, value: Any) -> None:
     check_setting(name, value)
 
 
-def best_env_steps(trainer: MultiAgentTrainer) -> int:
+def best_env_steps(trainer: DQNTrainer) -> int:
     """Environment steps at the trainer's best checkpoint (0 before the first evaluation)."""
     best = trainer.best_checkpoint()
     return 0 if best is None else best.env_steps
 
 
-def best_selection(trainer: MultiAgentTrainer) -> dict[str, float]:
+def best_selection(trainer: DQNTrainer) -> dict[str, float]:
     """Validation success rates of the trainer's best checkpoint, ``greedy`` and ``eps``."""
     best = trainer.best_checkpoint()
     if best is None:

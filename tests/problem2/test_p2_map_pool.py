@@ -154,14 +154,14 @@ def test_shared_weights_stay_shared_after_updates(tmp_path: Path) -> None:
     collect(trainer, 10)
     for _ in range(5):
         trainer.update_networks(32)
-    a, b = trainer.network_A.state_dict(), trainer.network_B.state_dict()
+    a, b = trainer.online.agent(0).state_dict(), trainer.online.agent(1).state_dict()
     assert all(torch.equal(a[k], b[k]) for k in a)
-    untrained = pool_trainer(tmp_path, share_weights=True).network_A.state_dict()
+    untrained = pool_trainer(tmp_path, share_weights=True).online.agent(0).state_dict()
     assert not torch.equal(a["hidden.weight"], untrained["hidden.weight"])  # they did learn
     separate = pool_trainer(tmp_path, share_weights=False)
     collect(separate, 10)
     separate.update_networks(32)
-    a, b = separate.network_A.state_dict(), separate.network_B.state_dict()
+    a, b = separate.online.agent(0).state_dict(), separate.online.agent(1).state_dict()
     assert not torch.equal(a["hidden.weight"], b["hidden.weight"])
 
 

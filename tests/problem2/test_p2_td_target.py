@@ -12,7 +12,7 @@ from multi_agent_env import MultiAgentEnv
 from replay import TransitionBatch
 from torch import nn
 from train_config import TrainConfig
-from trainer import MultiAgentTrainer
+from trainer import DQNTrainer
 
 GAMMA = 0.9
 # Q-values by state id (element 0 of the observation), one table per agent: (2, states, 5).
@@ -70,7 +70,7 @@ def hand_batch() -> TransitionBatch:
     )
 
 
-def trainer_with_tables(tmp_path: Path, advantage_learning: float) -> MultiAgentTrainer:
+def trainer_with_tables(tmp_path: Path, advantage_learning: float) -> DQNTrainer:
     cfg = TrainConfig(
         mode="independent",
         gamma=GAMMA,
@@ -80,7 +80,7 @@ def trainer_with_tables(tmp_path: Path, advantage_learning: float) -> MultiAgent
         advantage_learning_ramp=1.0,
         output_dir=str(tmp_path),
     ).validate()
-    trainer = MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
+    trainer = DQNTrainer(MultiAgentEnv(seed=641), cfg)
     trainer.online, trainer.target = Table(ONLINE), Table(TARGET)
     trainer.env_steps = cfg.total_steps  # the end of the run: α at its full value
     return trainer

@@ -1,6 +1,6 @@
 """Recurrent Q-learning (DRQN-style) for the memory agents, on the core trainer's loop.
 
-:class:`RecurrentTrainer` keeps everything of :class:`trainer.MultiAgentTrainer` but what
+:class:`RecurrentTrainer` keeps everything of :class:`trainer.DQNTrainer` but what
 memory changes: the network (:class:`agents.RecurrentQNetwork`, one set of weights for both
 agents, as in the map-pool recipe), acting with a hidden state per agent and copy, replay of
 whole episodes (:class:`EpisodeReplay`) and the TD loss over sequences

@@ -25,7 +25,7 @@ from grid_maps import NUM_ACTIONS, check_step
 from models import MessagingQNetwork, exportable_copy, observation_mask, save_scripted
 from torch import nn
 from torch.nn import functional as F
-from trainer import MultiAgentTrainer
+from trainer import DQNTrainer
 from vector_env import VectorMultiAgentEnv
 
 
@@ -134,7 +134,7 @@ def export_one_step(network: MessagingQNetwork, mode: str, path: str | Path) -> 
     return save_scripted(OneStepMemoryPolicy(network, mode), path)
 
 
-class OneStepMemoryTrainer(MultiAgentTrainer):
+class OneStepMemoryTrainer(DQNTrainer):
     """The core learner on :class:`OneStepMemoryEnv`'s 27-dim inputs, with the mode's
     channels hidden in both copies of the observation (:func:`memory_mask`).
 
