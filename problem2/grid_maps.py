@@ -75,33 +75,6 @@ def check_grid(grid: np.ndarray | list) -> np.ndarray:
     return array.astype(np.int64)
 
 
-def check_grid_stack(maps: np.ndarray, name: str = "maps") -> np.ndarray:
-    """``maps`` (M, H, W) as a read-only int64 stack, or ValueError naming the first bad
-    map: what :func:`check_grid` checks, vectorised over the stack."""
-    maps = np.asarray(maps)
-    if maps.ndim != 3 or len(maps) == 0 or maps.dtype.kind not in "iu":
-        raise ValueError(
-            f"{name} must be a non-empty integer stack of maps (M, H, W), got "
-            f"{maps.dtype} {maps.shape}"
-        )
-    well_formed = (
-        ((maps == FREE) | (maps == OBSTACLE) | (maps == TARGET)).all(axis=(1, 2))
-        & ((maps == TARGET).sum(axis=(1, 2)) == 1)
-        & ((maps == FREE).sum(axis=(1, 2)) >= 2)
-        & (reaches_target(maps) | (maps == OBSTACLE)).all(axis=(1, 2))
-    )
-    if not well_formed.all():
-        index = int(np.argmin(well_formed))
-        try:
-            check_grid(maps[index])  # names the problem
-        except ValueError as error:
-            raise ValueError(f"{name}[{index}]: {error}") from error
-    check_grid(maps[0])  # the size rules
-    stack = maps.astype(np.int64)
-    stack.flags.writeable = False
-    return stack
-
-
 def generate_map(grid_size: tuple[int, int] = (10, 10), seed: int | None = None) -> np.ndarray:
     """Draw a map (H, W) int64 with ``np.random.default_rng(seed)``: 3–6 obstacles off the
     four corners, then one target on a free cell, redrawn until every free cell reaches the
@@ -126,26 +99,12 @@ def generate_map(grid_size: tuple[int, int] = (10, 10), seed: int | None = None)
 
 
 # ------------------------------------------------ checks of what callers hand the env
-def choose_maps(
-    n_envs: int,
-    grid_size: tuple[int, int],
-    seed: int | None,
-    grid: np.ndarray | None,
-    grids: np.ndarray | None,
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """The maps (M, H, W) the copies play and, if M = 1, that map (H, W), else None: the
-    checked ``grid``, or ``grids`` (one map per copy; not both), or with neither the map
-    generated from ``seed`` at ``grid_size``."""
-    if grid is not None and grids is not None:
-        raise ValueError("give grid or grids, not both")
-    if grids is not None:
-        all_maps = check_grid_stack(grids, "grids")
-        if len(all_maps) != n_envs:
-            raise ValueError(f"grids must hold n_envs = {n_envs} maps, got {len(grids)}")
-        return all_maps, all_maps[0] if len(all_maps) == 1 else None  # else: map_indices
+def choose_map(grid_size: tuple[int, int], seed: int | None, grid: np.ndarray | None) -> np.ndarray:
+    """The map the copies play, read-only: the checked ``grid``, or the map generated from
+    ``seed`` at ``grid_size``."""
     one_map = generate_map(grid_size, seed) if grid is None else check_grid(grid)
     one_map.flags.writeable = False
-    return one_map[None], one_map
+    return one_map
 
 
 def check_step(actions: object, messages: object, n_envs: int) -> tuple[np.ndarray, np.ndarray]:

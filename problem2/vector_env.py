@@ -8,7 +8,7 @@ experience from 64 copies, the evaluator runs 1000 test episodes together);
 from __future__ import annotations
 
 import numpy as np
-from grid_maps import ACTION_DELTAS, FREE, OFF_GRID, TARGET, check_step, choose_maps
+from grid_maps import ACTION_DELTAS, FREE, OFF_GRID, TARGET, check_step, choose_map
 from settings import check_seed, is_integer, positive_int
 
 BOTH_ON_TARGET_REWARD = 10.0
@@ -57,12 +57,11 @@ class VectorMultiAgentEnv:
     and used instead, its shape replacing ``grid_size``) and, through a separate stream
     spawned with ``np.random.SeedSequence``, the agents' start cells.
 
-    Several maps: ``grids`` (N, H, W) gives copy i map i for its lifetime. The M maps' padded
-    tables are stacked, and a flat position indexes the stack (map m's cells are ``m * P ..
-    m * P + P - 1``, P padded cells per map), so a step costs what it costs with one map.
-    A subclass may change maps between episodes (``studies/pool_training.py``): it overrides
-    :meth:`_choose_maps` and :meth:`_before_placement`, and sees each step's state before the
-    auto-reset in :meth:`_after_move`.
+    The tables are built for a stack of M maps (map m's cells are flat indices ``m * P ..
+    m * P + P - 1``, P padded cells per map); the core plays one. A subclass may give the
+    copies several (``studies/pool_training.py``): it overrides :meth:`_choose_maps` and
+    :meth:`_before_placement`, and sees each step's state before the auto-reset in
+    :meth:`_after_move`.
 
     One team reward per step, never a per-agent sum: :func:`team_rewards` of ``reward_mode``.
     Both agents on the target terminates the episode; ``truncated`` is set when ``max_steps``
@@ -79,7 +78,6 @@ class VectorMultiAgentEnv:
         reward_mode: str = "per_step",
         grid: np.ndarray | None = None,
         auto_reset: bool = True,
-        grids: np.ndarray | None = None,
     ) -> None:
         self.n_envs = positive_int(n_envs, "n_envs")
         if not is_integer(obs_window) or obs_window < 3 or obs_window % 2 == 0:
@@ -91,14 +89,12 @@ class VectorMultiAgentEnv:
         self.reward_mode = reward_mode
         seed = check_seed(seed)
         self.auto_reset = bool(auto_reset)
-        self.grids, self.grid = self._choose_maps(grid_size, seed, grid, grids)
+        self.grids, self.grid = self._choose_maps(grid_size, seed, grid)
         self.grid_size: tuple[int, int] = (int(self.grids.shape[1]), int(self.grids.shape[2]))
         self.obs_dim = self.obs_window**2 + 2
         self._rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
         self._build_lookup_tables()
-        self._map_index = np.zeros(self.n_envs, dtype=np.int64)
-        if grids is not None:
-            self._map_index = np.arange(self.n_envs)
+        self._map_index = np.zeros(self.n_envs, dtype=np.int64)  # (N,) each copy's map
         self._copy_base = self._map_index * self._cells_per_map  # first flat index of the map
         self._copy_target = self._target_flat[self._map_index]  # (N,) flat target cells
         self._flat = np.zeros((self.n_envs, 2), dtype=np.int64)
@@ -109,14 +105,11 @@ class VectorMultiAgentEnv:
         self.reset()
 
     def _choose_maps(
-        self,
-        grid_size: tuple[int, int],
-        seed: int | None,
-        grid: np.ndarray | None,
-        grids: np.ndarray | None,
+        self, grid_size: tuple[int, int], seed: int | None, grid: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray | None]:
-        """The stack of maps (M, H, W) and the one map if M = 1 (:func:`grid_maps.choose_maps`)."""
-        return choose_maps(self.n_envs, grid_size, seed, grid, grids)
+        """The stack of maps (M, H, W) and the one map if M = 1 (:func:`grid_maps.choose_map`)."""
+        one_map = choose_map(grid_size, seed, grid)
+        return one_map[None], one_map
 
     def _build_lookup_tables(self) -> None:
         """Tables over the M stacked padded maps (flat index m * P + cell)."""
@@ -221,16 +214,6 @@ class VectorMultiAgentEnv:
         self._single_map("target_position")
         row, col = self._row_col[self._target_flat[0]]
         return int(row), int(col)
-
-    @property
-    def target_positions(self) -> np.ndarray:
-        """Target cell (N, 2) of each copy's current map."""
-        return self._rows_cols(self._copy_target)
-
-    @property
-    def map_indices(self) -> np.ndarray:
-        """Index (N,) int64 into ``grids`` of the map each copy plays now."""
-        return self._map_index.copy()
 
     @property
     def free_cells(self) -> np.ndarray:

@@ -18,11 +18,38 @@ from typing import Any
 
 import numpy as np
 from analysis.map_sets import MAX_POOL_SIZE, training_maps, validation_maps
-from grid_maps import OFF_GRID, check_grid_stack
+from grid_maps import FREE, OBSTACLE, OFF_GRID, TARGET, check_grid, reaches_target
 from settings import boolean, int_in, number_in, setting
 from train_config import TrainConfig
 from trainer import DQNTrainer
 from vector_env import VectorMultiAgentEnv
+
+
+def check_grid_stack(maps: np.ndarray, name: str = "maps") -> np.ndarray:
+    """``maps`` (M, H, W) as a read-only int64 stack, or ValueError naming the first bad
+    map: what :func:`check_grid` checks, vectorised over the stack."""
+    maps = np.asarray(maps)
+    if maps.ndim != 3 or len(maps) == 0 or maps.dtype.kind not in "iu":
+        raise ValueError(
+            f"{name} must be a non-empty integer stack of maps (M, H, W), got "
+            f"{maps.dtype} {maps.shape}"
+        )
+    well_formed = (
+        ((maps == FREE) | (maps == OBSTACLE) | (maps == TARGET)).all(axis=(1, 2))
+        & ((maps == TARGET).sum(axis=(1, 2)) == 1)
+        & ((maps == FREE).sum(axis=(1, 2)) >= 2)
+        & (reaches_target(maps) | (maps == OBSTACLE)).all(axis=(1, 2))
+    )
+    if not well_formed.all():
+        index = int(np.argmin(well_formed))
+        try:
+            check_grid(maps[index])  # names the problem
+        except ValueError as error:
+            raise ValueError(f"{name}[{index}]: {error}") from error
+    check_grid(maps[0])  # the size rules
+    stack = maps.astype(np.int64)
+    stack.flags.writeable = False
+    return stack
 
 
 @dataclass
@@ -61,8 +88,9 @@ class PoolConfig(TrainConfig):
 
 
 class PooledVectorEnv(VectorMultiAgentEnv):
-    """``n_envs`` copies that draw a map uniformly from ``map_pool`` (M, H, W) at each episode
-    start (from the same stream as the start cells, map first). With ``track_coverage`` each
+    """``n_envs`` copies on several maps: with ``map_pool`` (M, H, W) each copy draws a map
+    uniformly at each episode start (from the same stream as the start cells, map first);
+    with ``grids`` (N, H, W) copy i plays map i for its lifetime. With ``track_coverage`` each
     step's ``info`` holds ``newly_seen`` (N,) int64: the grid cells that entered either agent's
     patch for the first time in the episode. Other arguments as the core environment's."""
 
@@ -71,27 +99,50 @@ class PooledVectorEnv(VectorMultiAgentEnv):
         n_envs: int,
         *,
         map_pool: np.ndarray | None = None,
+        grids: np.ndarray | None = None,
         track_coverage: bool = False,
         **kwargs: Any,
     ) -> None:
+        chosen = (("grid", kwargs.get("grid")), ("map_pool", map_pool), ("grids", grids))
+        given = [name for name, value in chosen if value is not None]
+        if len(given) > 1:
+            raise ValueError(f"give one of grid, map_pool and grids, got {' and '.join(given)}")
         self._pool = None if map_pool is None else check_grid_stack(map_pool, "map_pool")
-        if self._pool is not None and kwargs.get("grid") is not None:
-            raise ValueError("give grid or map_pool, not both")
+        self._fixed = None if grids is None else check_grid_stack(grids, "grids")
+        if self._fixed is not None and len(self._fixed) != n_envs:
+            raise ValueError(f"grids must hold n_envs = {n_envs} maps, got {len(self._fixed)}")
         self.track_coverage = bool(track_coverage)
         super().__init__(n_envs, **kwargs)
 
-    def _choose_maps(self, grid_size, seed, grid, grids):  # noqa: ANN001, ANN202
-        if self._pool is None:
-            return super()._choose_maps(grid_size, seed, grid, grids)
-        return self._pool, self._pool[0] if len(self._pool) == 1 else None
+    def _choose_maps(self, grid_size, seed, grid):  # noqa: ANN001, ANN202
+        maps = self._pool if self._fixed is None else self._fixed
+        if maps is None:
+            return super()._choose_maps(grid_size, seed, grid)
+        return maps, maps[0] if len(maps) == 1 else None
+
+    @property
+    def map_indices(self) -> np.ndarray:
+        """Index (N,) int64 into ``grids`` of the map each copy plays now."""
+        return self._map_index.copy()
+
+    @property
+    def target_positions(self) -> np.ndarray:
+        """Target cell (N, 2) of each copy's current map."""
+        return self._rows_cols(self._copy_target)
+
+    def _assign_maps(self, rows: np.ndarray, maps: np.ndarray) -> None:
+        self._map_index[rows] = maps
+        self._copy_base[rows] = maps * self._cells_per_map
+        self._copy_target[rows] = self._target_flat[maps]
 
     def _before_placement(self, rows: np.ndarray) -> None:
-        """Give copies ``rows`` a uniformly drawn map each."""
+        """Give copies ``rows`` a uniformly drawn map each (or, with ``grids``, their own)."""
         if self._pool is not None:
-            drawn = (self._rng.random(len(rows)) * len(self.grids)).astype(np.int64)
-            self._map_index[rows] = drawn
-            self._copy_base[rows] = drawn * self._cells_per_map
-            self._copy_target[rows] = self._target_flat[drawn]
+            self._assign_maps(
+                rows, (self._rng.random(len(rows)) * len(self.grids)).astype(np.int64)
+            )
+        elif self._fixed is not None:
+            self._assign_maps(rows, rows)
 
     def _build_lookup_tables(self) -> None:
         super()._build_lookup_tables()

@@ -33,7 +33,7 @@ def test_each_copy_obeys_its_own_map_like_a_single_map_env() -> None:
     starts = np.array([[[0, 0], [9, 9]], [[0, 9], [9, 0]], [[5, 0], [0, 5]], [[9, 4], [4, 9]]])
     for copy, grid in enumerate(MAPS):  # the start cells must be free on every map
         assert (grid[starts[copy, :, 0], starts[copy, :, 1]] != 1).all()
-    stacked = VectorMultiAgentEnv(4, grids=MAPS, max_steps=30, auto_reset=False)
+    stacked = PooledVectorEnv(4, grids=MAPS, max_steps=30, auto_reset=False)
     singles = [VectorMultiAgentEnv(1, grid=g, max_steps=30, auto_reset=False) for g in MAPS]
     obs = stacked.reset(positions=starts)
     for copy, single in enumerate(singles):
@@ -79,13 +79,15 @@ def test_single_map_path_is_unchanged_by_the_pool_code() -> None:
 
 
 def test_several_maps_refuse_single_map_questions_and_bad_stacks() -> None:
-    env = VectorMultiAgentEnv(4, grids=MAPS)
+    env = PooledVectorEnv(4, grids=MAPS)
     with pytest.raises(ValueError, match="several"):
         _ = env.target_position
     with pytest.raises(ValueError, match="n_envs"):
-        VectorMultiAgentEnv(3, grids=MAPS)
-    with pytest.raises(ValueError, match="not both"):
+        PooledVectorEnv(3, grids=MAPS)
+    with pytest.raises(ValueError, match="give one of grid, map_pool and grids"):
         PooledVectorEnv(4, grid=MAPS[0], map_pool=MAPS)
+    with pytest.raises(ValueError, match="map_pool and grids"):
+        PooledVectorEnv(4, map_pool=MAPS, grids=MAPS)
     broken = MAPS.copy()
     broken[2, 0, 1] = broken[2, 1, 0] = 1  # corner (0, 0) cut off
     with pytest.raises(ValueError, match=r"map_pool\[2\].*not connected"):
