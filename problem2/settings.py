@@ -29,20 +29,6 @@ class SettingError(ValueError):
         super().__init__("\n".join(f"{n} {p}, got {v!r}" for n, p, v in self.problems))
         self.name, self.problem, self.value = name, problem, value
 
-    def usage(self) -> str:
-        """The usage error, a line per problem: ``argument --name: problem, got value``."""
-        return "\n".join(
-            f"argument --{name}: {problem}, got {shown_value(value)}"
-            for name, problem, value in self.problems
-        )
-
-
-def shown_value(value: Any) -> str:
-    """A value as typed on the command line (a list space-separated, a string quoted)."""
-    if isinstance(value, list):
-        return " ".join(str(v) for v in value)
-    return repr(value) if isinstance(value, str) else str(value)
-
 
 def check_value(name: str, value: Any, check: Check) -> None:
     """Raise :class:`SettingError` if ``check`` finds a problem with ``value``."""

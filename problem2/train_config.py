@@ -133,8 +133,8 @@ class TrainConfig:
     )
     epsilon_decay: float = setting(
         0.0,
-        "the skeleton's factor in (0, 1): epsilon <- max(epsilon_end, epsilon * factor) after "
-        "each finished episode; 0 = linear schedule",
+        "the skeleton's multiplicative factor in (0, 1): epsilon <- max(epsilon_end, epsilon * "
+        "factor) after each finished episode; 0 = linear schedule",
         decay_factor,
     )
     epsilon_fraction: float = setting(
@@ -223,7 +223,8 @@ class TrainConfig:
     )
     output_dir: str = setting(
         str(DEFAULT_OUTPUT_DIR),
-        "folder for agent_models/ and training_logs/ (default: problem2/results)",
+        "folder for agent_models/ and training_logs/, relative to the current folder "
+        "(default: problem2/results)",
         folder,
     )
     workers: int = setting(

@@ -19,9 +19,8 @@ MAX_TABULATED_CELLS = 4096  # padded cells; the (P, P) float32 table is then ≤
 
 
 def team_rewards(on_target: np.ndarray, first_arrival: np.ndarray, reward_mode: str) -> np.ndarray:
-    """The reward table: one team reward (N,) per step, from which agents stand on the
-    target now (``on_target`` (N, 2) bool) and which of them reach it for the first time
-    in the episode (``first_arrival`` (N, 2) bool).
+    """One team reward (N,) per step, from who stands on the target (``on_target`` (N, 2)
+    bool) and who reaches it for the first time in the episode (``first_arrival`` (N, 2)).
 
     ================================  =====================  ==============  ========
     after the joint move              ``per_step``           ``arrival``     ``goal``
@@ -32,9 +31,8 @@ def team_rewards(on_target: np.ndarray, first_arrival: np.ndarray, reward_mode: 
     otherwise                         -0.1                   -0.1            -0.1
     ================================  =====================  ==============  ========
 
-    ``per_step`` (the assignment's table) is the environments' default; ``goal`` is the
-    trainer's default (``TrainConfig.reward_mode``), which adds a potential-based arrival
-    term of its own (``--target_potential``).
+    ``per_step`` (the assignment's table) is the environments' default, ``goal`` the
+    trainer's (which adds its own arrival term, ``--target_potential``).
     """
     both = on_target[:, 0] & on_target[:, 1]
     if reward_mode == "per_step":
@@ -51,11 +49,9 @@ def team_rewards(on_target: np.ndarray, first_arrival: np.ndarray, reward_mode: 
 class VectorMultiAgentEnv:
     """``n_envs`` copies stepped together; all state lives in NumPy arrays.
 
-    Positions are kept as flat indices into the map padded by ``obs_window // 2`` cells of
-    -1 on each side, so a move is one addition, a wall check one lookup and an observation
-    patch one gather. ``seed`` draws the map (unless ``grid`` is given, which is validated
-    and used instead, its shape replacing ``grid_size``) and, through a separate stream
-    spawned with ``np.random.SeedSequence``, the agents' start cells.
+    Positions are flat indices into the map padded by ``obs_window // 2`` cells of -1, so a
+    move is one addition, a wall check one lookup and a patch one gather. ``seed`` draws the
+    map (unless ``grid`` is given) and, through a spawned stream, the agents' start cells.
 
     The tables are built for a stack of M maps (map m's cells are flat indices ``m * P ..
     m * P + P - 1``, P padded cells per map); the core plays one. A subclass may give the
@@ -63,9 +59,8 @@ class VectorMultiAgentEnv:
     :meth:`_before_placement`, and sees each step's state before the auto-reset in
     :meth:`_after_move`.
 
-    One team reward per step, never a per-agent sum: :func:`team_rewards` of ``reward_mode``.
-    Both agents on the target terminates the episode; ``truncated`` is set when ``max_steps``
-    steps pass without termination.
+    One team reward per step (:func:`team_rewards`). Both agents on the target terminates
+    the episode; ``truncated`` is set when ``max_steps`` steps pass without it.
     """
 
     def __init__(
@@ -161,8 +156,8 @@ class VectorMultiAgentEnv:
         return self._copy_base.reshape((-1,) + (1,) * (rows.ndim - 1))
 
     def _check_cells(self, positions: object, name: str) -> np.ndarray:
-        """Flat cells of ``positions`` (N, 2, 2), integer (row, col) cells inside the grid,
-        not obstacles; ValueError naming ``name`` otherwise."""
+        """Flat cells of ``positions`` (N, 2, 2) (row, col); ValueError naming ``name``
+        unless they are integer cells inside the grid, not obstacles."""
         positions = np.asarray(positions)
         if positions.shape != (self.n_envs, 2, 2) or positions.dtype.kind not in "iu":
             raise ValueError(
@@ -188,9 +183,8 @@ class VectorMultiAgentEnv:
 
     @positions.setter
     def positions(self, positions: np.ndarray) -> None:
-        """Move the agents by hand to (N, 2, 2) cells (inside the grid, not obstacles); the
-        episode goes on from there (step count and messages kept). An agent placed on the
-        target counts as having reached it (no arrival bonus for that)."""
+        """Move the agents by hand to (N, 2, 2) passable cells; the episode goes on (step
+        count and messages kept), an agent placed on the target having reached it."""
         self._flat = self._check_cells(positions, "positions")
         self._visited |= self._flat == self._copy_target[:, None]
 
@@ -222,8 +216,8 @@ class VectorMultiAgentEnv:
         return self._rows_cols(self._start_cells)
 
     def is_passable(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """Bool array: inside the grid and not an obstacle (free or target). With several
-        maps the leading axis of ``rows`` and ``cols`` is the copy (each its own map)."""
+        """Bool array: inside the grid and not an obstacle (with several maps, the leading
+        axis is the copy)."""
         rows, cols = np.asarray(rows), np.asarray(cols)
         inside = (rows >= 0) & (rows < self.grid_size[0]) & (cols >= 0) & (cols < self.grid_size[1])
         flat = self._to_flat(np.where(inside, rows, 0), np.where(inside, cols, 0))
@@ -236,15 +230,14 @@ class VectorMultiAgentEnv:
         return np.where(np.take(self._passable, proposed), proposed, flat)
 
     def next_cells(self, rows: np.ndarray, cols: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """Cells (..., 2) reached from passable cells ``(rows, cols)`` by ``actions`` (same shape,
-        ints 0..4, checked by the caller); a move into a wall or an obstacle stays in place."""
+        """Cells (..., 2) reached from passable ``(rows, cols)`` by ``actions`` (ints 0..4);
+        a move into a wall or an obstacle stays in place."""
         flat = self._to_flat(rows, cols) + self._bases_for(np.asarray(rows))
         return self._rows_cols(self._move(flat, actions))
 
     def _observe(self, flat: np.ndarray, messages: np.ndarray) -> np.ndarray:
         """Observations (n, 2, w² + 2) float32 from flat positions and sent messages (n, 2):
-        the patch, the partner's message, the distance (``obs_dim`` unless a subclass feeds
-        its agents more)."""
+        the patch, the partner's message, the distance."""
         patch_size = self.obs_window**2
         obs = np.empty((flat.shape[0], 2, patch_size + 2), dtype=np.float32)
         obs[:, :, :patch_size] = np.take(self._patches, flat, axis=0)
@@ -264,17 +257,15 @@ class VectorMultiAgentEnv:
         return self._observe(self._flat, self._messages)
 
     def _before_placement(self, rows: np.ndarray) -> None:
-        """Called when copies ``rows`` start new episodes, before the agents are placed (a
-        subclass may give them other maps here)."""
+        """Hook: copies ``rows`` start new episodes (a subclass may change their maps)."""
 
     def _after_move(self, info: dict[str, np.ndarray]) -> None:
-        """Called after each step's move with its ``info``, before finished copies restart
-        (a subclass may add to ``info`` what it measures of the state)."""
+        """Hook: after each move, before finished copies restart (a subclass may add to
+        ``info``)."""
 
     def _start_episodes(self, rows: np.ndarray, flat: np.ndarray | None = None) -> None:
-        """Begin new episodes in copies ``rows`` (their maps already chosen): place agents
-        (random distinct free cells unless ``flat`` is given), clear messages, counters and
-        arrival flags."""
+        """Begin new episodes in copies ``rows``: agents on distinct random free cells (or
+        ``flat``), messages, counters and arrival flags cleared."""
         if flat is None:
             maps = self._map_index[rows]
             n_cells = self._free_counts[maps][:, None] - np.array([0, 1])  # A's, then B's
@@ -290,9 +281,8 @@ class VectorMultiAgentEnv:
 
     def reset(self, seed: int | None = None, positions: np.ndarray | None = None) -> np.ndarray:
         """Start a new episode in every copy; return observations (N, 2, obs_dim) float32.
-        ``seed`` reseeds the placement RNG (fixed evaluation episodes); ``positions`` (N, 2, 2)
-        places the agents by hand instead: any non-obstacle cells inside the grid, the target
-        included (no arrival bonus for it), but not both on the target."""
+        ``seed`` reseeds the start cells (fixed evaluation episodes); ``positions`` (N, 2, 2)
+        places the agents by hand (passable cells, not both on the target)."""
         if check_seed(seed) is not None:
             self._rng = np.random.default_rng(seed)
         every_copy = np.arange(self.n_envs)
@@ -310,15 +300,12 @@ class VectorMultiAgentEnv:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """Advance every copy one step.
 
-        Args: ``actions`` (N, 2) ints in 0..4; ``messages`` (N, 2) finite numbers, clipped
-        into [0, 1], the message each agent sends now (its partner reads it in the returned
-        observation). Returns ``(obs (N, 2, obs_dim) float32, rewards (N,) float64,
-        terminated (N,) bool, truncated (N,) bool, info)``. With ``auto_reset`` the copies
-        that finished start a new episode and ``obs`` holds its first observation; ``info``
-        describes the state before that reset: ``final_obs`` (N, 2, obs_dim), ``positions``
-        (N, 2, 2), ``on_target`` (N, 2) bool, ``steps`` (N,) steps taken in the episode,
-        and whatever :meth:`_after_move` adds. Without ``auto_reset``,
-        stepping after a copy finished raises ValueError.
+        Args: ``actions`` (N, 2) ints in 0..4; ``messages`` (N, 2) the messages sent now,
+        clipped into [0, 1] (the partner reads them in the returned observation). Returns
+        ``(obs (N, 2, obs_dim), rewards (N,), terminated (N,), truncated (N,), info)``. With
+        ``auto_reset`` finished copies restart and ``obs`` is the new episode's; ``info``
+        holds the state before: ``final_obs``, ``positions`` (N, 2, 2), ``on_target`` (N, 2)
+        and ``steps`` (N,). Without it, stepping a finished copy raises ValueError.
         """
         actions, messages = check_step(actions, messages, self.n_envs)
         if self._finished.any():

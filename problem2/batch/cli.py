@@ -53,6 +53,21 @@ rows it measured in <output_dir>/interrupted/training_logs/ and the results unto
 Stale temporary files of killed runs are removed at the next start."""
 
 
+def usage(error: SettingError) -> str:
+    """The usage error, a line per problem: ``argument --name: problem, got value``."""
+    return "\n".join(
+        f"argument --{name}: {problem}, got {shown_value(value)}"
+        for name, problem, value in error.problems
+    )
+
+
+def shown_value(value: Any) -> str:
+    """A value as typed on the command line (a list space-separated, a string quoted)."""
+    if isinstance(value, list):
+        return " ".join(str(v) for v in value)
+    return repr(value) if isinstance(value, str) else str(value)
+
+
 def build_parser(cls: type = TrainConfig) -> argparse.ArgumentParser:
     """One flag per dataclass field, in both spellings, with the field's help and default."""
     parser = argparse.ArgumentParser(
@@ -113,7 +128,7 @@ def parse_config_or_exit(
         if extra_check is not None:
             extra_check(cfg)
     except SettingError as error:
-        parser.error(error.usage())
+        parser.error(usage(error))
     return cfg
 
 

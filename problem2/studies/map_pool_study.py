@@ -49,6 +49,7 @@ from analysis.map_sets import (
     VALIDATION_FIRST_SEED,
 )
 from analysis.stats import BOOTSTRAP_RESAMPLES, seed_paired_differences, seed_statistics
+from batch.cli import usage
 from batch.plumbing import (
     ProgressLine,
     make_console_safe,
@@ -388,7 +389,7 @@ def parse_args(argv: list[str] | None) -> tuple[PoolConfig, argparse.Namespace]:
         check_field("output_dir", str(args.output_dir))  # the study's own folder
         cfg = PoolConfig(**settings).validate()
     except SettingError as error:
-        parser.error(error.usage())
+        parser.error(usage(error))
     return cfg, args
 
 

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 from analysis.stats import seed_statistics
+from batch.cli import usage
 from batch.plumbing import ProgressLine, make_console_safe, run_jobs, write_json_atomic
 from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
@@ -130,7 +131,7 @@ def main(argv: list[str] | None = None) -> dict:
         cfg = PoolConfig(**RECIPE | {"seeds": [], "workers": args.workers}).validate()
         check_field("workers", args.workers)
     except SettingError as error:
-        parser.error(error.usage())
+        parser.error(usage(error))
     steps = max(SETTINGS[n].get("total_steps", cfg.total_steps) for n in names)
     with staged_output(args.output_dir, subfolders=()) as staging:  # installed whole
         jobs = [(cfg, n, m, s, staging) for n in names for m in LEVER_MODES for s in TRAINING_SEEDS]

@@ -35,6 +35,7 @@ from analysis.failures import homing_shares
 from analysis.map_sets import HELD_OUT_MAP_SEEDS
 from analysis.runs import load_policy
 from analysis.stats import seed_paired_differences, seed_statistics
+from batch.cli import usage
 from batch.plumbing import ProgressLine, make_console_safe, run_jobs, write_json_atomic
 from matplotlib.figure import Figure
 from models import use_reproducible_matmul
@@ -316,7 +317,7 @@ def parse_args(argv: list[str] | None) -> tuple[PoolConfig, argparse.Namespace]:
         check_field("output_dir", str(args.output_dir))
         cfg = PoolConfig(**settings).validate()
     except SettingError as error:
-        parser.error(error.usage())
+        parser.error(usage(error))
     args.modes, args.seeds = modes, list(range(args.num_seeds))
     return cfg, args
 
