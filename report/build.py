@@ -30,6 +30,7 @@ OPTIONAL_INPUTS = {
     "memory-levers": "problem2/results/studies/memory_levers/levers.json",
     "panel-study": "problem2/results/studies/panel/panel.json",
     "panel-long": "problem2/results/studies/panel/long/panel_long.json",
+    "memory-panel": "problem2/results/studies/memory_panel/memory_panel.json",
 }
 
 
