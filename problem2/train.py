@@ -6,7 +6,7 @@
 
 The algorithm is ``trainer.DQNTrainer``; :class:`MultiAgentTrainer` adds the course
 skeleton's interface to it. The hyperparameters are in ``train_config.py``, the batch in
-``batch/experiments.py`` and the flags in ``batch/cli.py``; :func:`apply_observation_mask`
+``batch/experiments.py`` and the flags in ``batch/plumbing.py``; :func:`apply_observation_mask`
 is the course's masking function (the learner applies the same mask,
 ``models.observation_mask``, inside its networks' inputs).
 """
@@ -20,9 +20,8 @@ from typing import Any
 
 import numpy as np
 import torch
-from batch.cli import parse_config_or_exit
 from batch.experiments import INTERRUPTED, check_output_dir, output_root, run_experiments
-from batch.plumbing import make_console_safe
+from batch.plumbing import make_console_safe, parse_config_or_exit
 from grid_maps import NUM_ACTIONS
 from models import observation_mask, use_reproducible_matmul
 from rollout import EVAL_SEED, Rollout

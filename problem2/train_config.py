@@ -1,6 +1,6 @@
 """Hyperparameters of Problem 2's training, in one dataclass: each field is declared once by
 ``settings.setting`` (default, help, allowed range), every value is checked before any work
-starts, and ``batch/cli.py`` builds one flag per field (``--num_episodes`` or
+starts, and ``batch/plumbing.py`` builds one flag per field (``--num_episodes`` or
 ``--num-episodes``). Study extensions add fields in a subclass (``studies/pool_training.py``).
 """
 

@@ -49,12 +49,12 @@ from analysis.map_sets import (
     VALIDATION_FIRST_SEED,
 )
 from analysis.stats import BOOTSTRAP_RESAMPLES, seed_paired_differences, seed_statistics
-from batch.cli import usage
 from batch.plumbing import (
     ProgressLine,
     make_console_safe,
     run_jobs,
     temporary_path_for,
+    usage,
     write_json_atomic,
 )
 from matplotlib.axes import Axes

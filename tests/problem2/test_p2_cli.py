@@ -11,8 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from batch.cli import parse_config
-from batch.plumbing import ProgressLine
+from batch.plumbing import ProgressLine, parse_config
 from train_config import SettingError, TrainConfig
 
 from tests.conftest import PROBLEM2, load_problem_module

@@ -13,7 +13,7 @@ import torch
 from analysis.baselines import random_policy
 from analysis.runs import load_map
 from batch import experiments
-from batch.cli import build_parser, parse_config
+from batch.plumbing import build_parser, parse_config
 from models import AgentDQN, DuelingDQN, PairedQNetworks
 from multi_agent_env import MultiAgentEnv
 from rollout import evaluate_policy

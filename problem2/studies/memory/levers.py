@@ -25,8 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 from analysis.stats import seed_statistics
-from batch.cli import usage
-from batch.plumbing import ProgressLine, make_console_safe, run_jobs, write_json_atomic
+from batch.plumbing import ProgressLine, make_console_safe, run_jobs, usage, write_json_atomic
 from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
 from train_config import SettingError, available_cores

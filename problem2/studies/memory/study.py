@@ -35,8 +35,7 @@ from analysis.failures import homing_shares
 from analysis.map_sets import HELD_OUT_MAP_SEEDS
 from analysis.runs import load_policy
 from analysis.stats import seed_paired_differences, seed_statistics
-from batch.cli import usage
-from batch.plumbing import ProgressLine, make_console_safe, run_jobs, write_json_atomic
+from batch.plumbing import ProgressLine, make_console_safe, run_jobs, usage, write_json_atomic
 from matplotlib.figure import Figure
 from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
