@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from grid_maps import NUM_ACTIONS
 from settings import positive_int
 
 TRANSITION_FIELDS = (
@@ -29,61 +28,6 @@ TRANSITION_FIELDS = (
     "next_state_B",
     "done",
 )
-STATE_FIELDS = ("state_A", "state_B", "next_state_A", "next_state_B")
-
-
-def check_transitions(arrays: dict[str, np.ndarray]) -> None:
-    """Refuse B transitions whose required fields are malformed, naming the field: states
-    not (B, D) finite with one D for all four, actions not integers in 0..NUM_ACTIONS-1,
-    messages outside [0, 1], rewards not finite, done not boolean (bool or 0/1)."""
-    states = [arrays[name] for name in STATE_FIELDS]
-    for name, value in zip(STATE_FIELDS, states, strict=True):
-        if value.ndim != 2 or value.shape[1] == 0 or value.shape[1:] != states[0].shape[1:]:
-            raise ValueError(
-                f"{name} must be one observation vector per transition with the size of "
-                f"state_A {states[0].shape[1:]}, got per-transition shape {value.shape[1:]}"
-            )
-        if not np.issubdtype(value.dtype, np.number) or not np.isfinite(value).all():
-            raise ValueError(f"{name} must hold finite numbers")
-    for name in TRANSITION_FIELDS:
-        if name not in STATE_FIELDS and arrays[name].ndim != 1:
-            raise ValueError(
-                f"{name} must be one number per transition, got per-transition shape "
-                f"{arrays[name].shape[1:]}"
-            )
-    for name in ("action_A", "action_B"):
-        value = arrays[name]
-        numeric = np.issubdtype(value.dtype, np.number) and value.dtype != np.bool_
-        if not (numeric and np.all(np.mod(value, 1) == 0)):
-            raise ValueError(f"{name} must be integer actions, got {value[:5].tolist()}")
-        if value.min() < 0 or value.max() >= NUM_ACTIONS:
-            raise ValueError(f"{name} must lie in 0..{NUM_ACTIONS - 1}, got {value[:5].tolist()}")
-    for name in ("comm_A", "comm_B"):
-        value = arrays[name]
-        if not np.issubdtype(value.dtype, np.number) or not ((value >= 0) & (value <= 1)).all():
-            raise ValueError(f"{name} must be a message in [0, 1], got {value[:5].tolist()}")
-    reward = arrays["reward"]
-    if not np.issubdtype(reward.dtype, np.number) or not np.isfinite(reward).all():
-        raise ValueError(f"reward must be a finite number, got {reward[:5].tolist()}")
-    done = arrays["done"]
-    if done.dtype != np.bool_ and not (
-        np.issubdtype(done.dtype, np.number) and np.isin(done, (0, 1)).all()
-    ):
-        raise ValueError(f"done must be boolean (True/False or 0/1), got {done[:5].tolist()}")
-
-
-def as_array(name: str, value: object) -> np.ndarray:
-    """``value`` as an array; a tensor that requires grad is refused by name."""
-    if type(value) is np.ndarray:  # the common case, nothing to convert or check
-        return value
-    if getattr(value, "requires_grad", False):
-        raise ValueError(
-            f"{name} is a tensor that requires grad; store a plain number (.item() or .detach())"
-        )
-    try:
-        return np.asarray(value)
-    except (TypeError, ValueError, RuntimeError) as error:
-        raise ValueError(f"{name} is not an array of numbers: {error}") from error
 
 
 def stored_name(field: str) -> str:
@@ -97,7 +41,8 @@ class ReplayBuffer:
     The first push fixes the fields and their shapes: one array per field, a pair of agent
     fields (``state_A``, ``state_B``) as one array with the agent axis first. Actions are
     stored as int64, everything else as float32. One way in, :meth:`push_batch`; one way out,
-    :meth:`get`. The course's :meth:`push` and :meth:`sample` are built on them.
+    :meth:`get`. The course's ``replay_buffer.ReplayBuffer`` adds ``push``, ``sample`` and
+    the checks of transitions pushed by hand.
     """
 
     def __init__(self, capacity: int = 10000, seed: int | None = None) -> None:
@@ -119,45 +64,19 @@ class ReplayBuffer:
         """The ten required fields, then the extras (empty before the first push)."""
         return self._fields
 
-    def push(
-        self,
-        state_A,
-        state_B,
-        action_A,
-        action_B,
-        comm_A,
-        comm_B,
-        reward,
-        next_state_A,
-        next_state_B,
-        done,
-        **extras,
-    ) -> None:
-        """Store one transition: states (obs_dim,), the rest scalars; ``extras`` likewise
-        one transition's worth each."""
-        values = (state_A, state_B, action_A, action_B, comm_A, comm_B, reward)
-        values += (next_state_A, next_state_B, done)
-        fields = dict(zip(TRANSITION_FIELDS, values, strict=True)) | extras
-        self.push_batch(**{name: as_array(name, value)[None] for name, value in fields.items()})
-
-    def push_batch(self, *, validate: bool = True, **arrays: np.ndarray) -> np.ndarray:
-        """Store B transitions: the ten required fields and any extras as keywords, each
-        with leading dimension B (states (B, obs_dim), actions (B,), ...). If B exceeds the
-        capacity only the last ``capacity`` are kept. Returns the slots written (B',) int64.
-        ``validate=False`` skips :func:`check_transitions` (for a trainer that pushes what
-        the environment returned, already checked there)."""
+    def push_batch(self, **arrays: np.ndarray) -> np.ndarray:
+        """Store B transitions: the ten required fields and any extras as keywords, each an
+        array with leading dimension B (states (B, obs_dim), actions (B,), ...). If B exceeds
+        the capacity only the last ``capacity`` are kept. Returns the slots written (B',)."""
         missing = [name for name in TRANSITION_FIELDS if name not in arrays]
         if missing:
             raise ValueError(f"push_batch is missing required fields {missing}")
-        arrays = {name: as_array(name, value) for name, value in arrays.items()}
         lengths = {value.shape[0] if value.ndim else 0 for value in arrays.values()}
         if len(lengths) != 1 or 0 in lengths:
             raise ValueError(
                 "every field needs the same non-zero leading (batch) dimension; "
                 f"got shapes { {name: a.shape for name, a in arrays.items()} }"
             )
-        if validate:
-            check_transitions(arrays)
         if not self._arrays:
             self._allocate(arrays)
         self._check_like_first_push(arrays)
@@ -221,21 +140,6 @@ class ReplayBuffer:
             name: np.take(values, indices, axis=1 if name in self._paired else 0)
             for name, values in self._arrays.items()
         }
-
-    def sample(self, batch_size: int) -> tuple[np.ndarray, ...]:
-        """Uniform sample with replacement: the ten required arrays in interface order,
-        states (B, obs_dim) float32, actions (B,) int64, the rest (B,) float32."""
-        return self.fields_at(self.sample_indices(batch_size))
-
-    def fields_at(self, indices: np.ndarray) -> tuple[np.ndarray, ...]:
-        """The ten required fields at slots ``indices``, in interface order."""
-        stored = self.get(indices)
-        return tuple(
-            stored[stored_name(name)]["AB".index(name[-1])]
-            if name.endswith(("_A", "_B"))
-            else stored[name]
-            for name in TRANSITION_FIELDS
-        )
 
 
 @dataclass

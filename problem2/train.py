@@ -24,6 +24,7 @@ from batch.experiments import INTERRUPTED, check_output_dir, output_root, run_ex
 from batch.plumbing import make_console_safe, parse_config_or_exit
 from grid_maps import NUM_ACTIONS
 from models import observation_mask, use_reproducible_matmul
+from replay_buffer import ReplayBuffer
 from rollout import EVAL_SEED, Rollout
 from train_config import TrainConfig
 from trainer import EVAL_EPSILON, DQNTrainer
@@ -64,6 +65,8 @@ class MultiAgentTrainer(DQNTrainer):
 
     def __init__(self, env: Any, args: Any) -> None:
         super().__init__(env, config_from(args))
+        # The course's buffer: push / sample, and every push checked (transitions by hand).
+        self.replay_buffer = ReplayBuffer(self.cfg.buffer_size, seed=self.seed)
         self._episode_rollout: Rollout | None = None  # the one-environment rollout
 
     @property

@@ -263,8 +263,8 @@ class DQNTrainer:
         }
         finished = terminated | truncated
         complete = rollout.window.add(start, rewards, next_obs, obs, terminated, finished)
-        if len(complete["reward"]):  # the environment checked the actions and messages
-            self.replay_buffer.push_batch(validate=False, **complete)
+        if len(complete["reward"]):
+            self.replay_buffer.push_batch(**complete)
 
     # ------------------------------------------------------------------ 4. update
     def update_networks(self, batch_size: int) -> float:
