@@ -43,22 +43,6 @@ from train_config import TRAINABLE_MODES, TrainConfig
 from vector_env import VectorMultiAgentEnv
 
 LAST_WEIGHTS = "last_weights"  # subfolder of agent_models/: each run's final weights (keep_best)
-LOG_FIELDS = (
-    "env_steps",
-    "episodes",
-    "updates",
-    "epsilon",
-    "loss",
-    "mean_q",
-    "train_return",
-    "train_success",
-    "eval_success_greedy",
-    "eval_success_eps",
-    "eval_return_greedy",
-    "eval_return_eps",
-    "eval_steps_greedy",
-    "eval_steps_eps",
-)
 
 
 @dataclass
@@ -454,9 +438,12 @@ class DQNTrainer:
             eval_steps_eps=steps(eps),
         )
         self._losses, self._mean_qs = [], []
-        self.log.append(row)
         with open(self.log_path, "a", newline="", encoding="utf-8") as handle:
-            csv.DictWriter(handle, LOG_FIELDS, lineterminator="\n").writerow(row)
+            writer = csv.DictWriter(handle, list(row), lineterminator="\n")
+            if not self.log:  # the row's keys are the columns
+                writer.writeheader()
+            writer.writerow(row)
+        self.log.append(row)
         if progress:
             progress(row)
 
@@ -473,10 +460,9 @@ class DQNTrainer:
         return self.logs_dir / f"{self.name}.csv"
 
     def start_log(self) -> None:
-        """Create the log file with its header (replacing an older one)."""
+        """Create the log file empty (replacing an older one); the first row writes the header."""
         self.logs_dir.mkdir(parents=True, exist_ok=True)
-        with open(self.log_path, "w", newline="", encoding="utf-8") as handle:
-            csv.DictWriter(handle, LOG_FIELDS, lineterminator="\n").writeheader()
+        self.log_path.write_bytes(b"")
 
     def save_models(self, folder: Path | None = None) -> list[Path]:
         """Export both agents (TorchScript, mask inside) as ``<mode>_seed<seed>_agent_X.pt``
