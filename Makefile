@@ -9,7 +9,8 @@ DEV_STAMP     := $(VENV)/.dev-installed
 REPORT_STAMP  := $(VENV)/.report-installed
 
 .PHONY: all problem1 problem2 studies beyond p2-baselines p2-main p2-studies p2-panel p2-map-pool \
-	p2-stability p2-memory p2-memory-levers p2-memory-panel p2-evaluate report \
+	p2-stability p2-memory p2-memory-levers p2-memory-panel p2-one-step-unseen p2-one-step-levers \
+	p2-evaluate report \
 	test lint \
 	bench clean
 
@@ -56,10 +57,10 @@ p2-evaluate: $(RUNTIME_STAMP)
 ## DP), messages without DIAL, then their evaluation, and the map panel (it evaluates itself).
 studies: p2-main p2-studies p2-evaluate p2-panel p2-memory-panel
 
-## Beyond the default task (about 69 min on 2 cores): agents on a pool of generated maps, the stability
-## study, agents with memory and the levers tried on them (each writes its own results;
-## `make p2-evaluate` reads only the main experiment and `make studies`' batches).
-beyond: p2-map-pool p2-stability p2-memory p2-memory-levers
+## Beyond the default task (measured times are in the README): agents on a pool of generated maps,
+## the stability study, agents with memory (GRU, and one step) and the levers tried on them (each
+## writes its own results; `make p2-evaluate` reads only the main experiment and `make studies`').
+beyond: p2-map-pool p2-stability p2-memory p2-memory-levers p2-one-step-unseen p2-one-step-levers
 
 p2-studies: $(RUNTIME_STAMP)
 	cd problem2 && for reward in per_step arrival; do \
@@ -105,6 +106,13 @@ p2-memory: $(RUNTIME_STAMP)
 ## about 19 min).
 p2-memory-levers: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.memory.levers
+
+## One-step memory agents on the map pool, tested on the held-out maps; the levers on training seeds.
+p2-one-step-unseen: $(RUNTIME_STAMP)
+	cd problem2 && $(PY) -m studies.one_step.unseen
+
+p2-one-step-levers: $(RUNTIME_STAMP)
+	cd problem2 && $(PY) -m studies.one_step.unseen --levers
 
 ## The written report, built from the result files (seconds). Your name on the cover:
 ##   make report NAME="Full Name" EMAIL="you@usc.edu"   (only values given on this command line)
