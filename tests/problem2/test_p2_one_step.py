@@ -12,6 +12,7 @@ import torch
 from batch.experiments import run_experiments
 from rollout import run_episodes
 from studies.memory.agents import memory_policy
+from studies.one_step import why
 from studies.one_step.agents import (
     OneStepMemoryEnv,
     OneStepMemoryTrainer,
@@ -26,6 +27,7 @@ pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.\\w+` is deprecated:D
 
 PATCH, PREVIOUS, MOVE = slice(0, 9), slice(9, 20), slice(20, 25)
 RAW = [*range(9), 25, 26]  # the current observation inside the 27 inputs
+MEMORY_KEEPS = (("observation", "move"), ("move",), ("observation",))
 
 
 def test_observations_hold_the_previous_observation_and_move() -> None:
@@ -183,3 +185,57 @@ def test_panel_policy_is_memory_policy_when_greedy_and_explores_with_the_panel_d
     np.testing.assert_array_equal(runs["greedy"].lengths, reference.lengths)
     np.testing.assert_array_equal(runs["greedy"].returns, reference.returns)
     assert not np.array_equal(runs["eps"].returns, reference.returns)
+
+
+def test_ablation_masks_zero_exactly_the_memory_part_left_out() -> None:
+    both, move, observation = (memory_mask("full", 11, keep) for keep in MEMORY_KEEPS)
+    np.testing.assert_array_equal(both[PREVIOUS], 1.0)
+    np.testing.assert_array_equal(move[PREVIOUS], 0.0)
+    np.testing.assert_array_equal(move[MOVE], 1.0)
+    np.testing.assert_array_equal(observation[MOVE], 0.0)
+    np.testing.assert_array_equal(observation[PREVIOUS], 1.0)
+    for mask in (both, move, observation):
+        np.testing.assert_array_equal(mask[RAW], 1.0)  # the current observation untouched
+
+
+class EchoAgent:
+    """Returns what it was fed: Q from the previous move, h as the message."""
+
+    def initial_state(self, n: int) -> torch.Tensor:
+        return torch.zeros(n, 11)
+
+    def __call__(self, obs: torch.Tensor, prev: torch.Tensor, h: torch.Tensor) -> tuple:
+        return prev.float()[:, None].expand(-1, 5), h[:, :1], h
+
+
+def test_interventions_replace_only_the_named_memory_input() -> None:
+    prev = torch.tensor([-1, 0, 2, 3])
+    h = torch.arange(44, dtype=torch.float32).reshape(4, 11)
+    obs = torch.zeros(4, 11)
+
+    def fed(kind: str) -> tuple[torch.Tensor, torch.Tensor]:
+        q, message, _ = why.Intervened(EchoAgent(), kind, seed=0)(obs, prev, h)
+        return q[:, 0].long(), message[:, 0]
+
+    moves, states = fed("move_other_episode")
+    assert moves.tolist() == [-1, 0, 0, 2]  # copy 1's partner episode is starting: its own kept
+    assert torch.equal(states, h[:, 0])
+    moves, states = fed("observation_other_episode")
+    assert moves.tolist() == prev.tolist()
+    assert states.tolist() == [0.0, 0.0, 11.0, 22.0]  # at an episode start h stays
+    moves, _ = fed("move_random")
+    assert moves[0] == -1 and ((moves[1:] >= 0) & (moves[1:] < 5)).all()
+    _, states = fed("zeros")
+    assert not states.any()
+
+
+def test_move_shares_count_moves_that_undo_or_repeat_the_previous_one() -> None:
+    grid = np.zeros((3, 3), dtype=np.int64)
+    grid[2, 2] = 2
+    actions = np.array([[[3, 4], [2, 0], [2, 0], [2, -1], [-1, -1]]])  # (1, T=5, 2)
+    positions = np.zeros((1, 6, 2, 2), dtype=np.int64)  # both agents stay off the target
+    shares = why.move_shares(actions, positions, grid)
+    # A: Right then Left (undo), Left, Left (repeats); B: after Stay not counted, Up, Up.
+    assert shares == {"undo": 0.25, "repeat": 0.75}
+    positions[0, 2:, 0] = (2, 2)  # A on the target from its third move on: not counted
+    assert why.move_shares(actions, positions, grid) == {"undo": 0.5, "repeat": 0.5}

@@ -28,14 +28,19 @@ from torch.nn import functional as F
 from trainer import DQNTrainer
 from vector_env import VectorMultiAgentEnv
 
+MEMORY_PARTS = ("observation", "move")  # what one step of memory holds
 
-def memory_mask(mode: str, raw_dim: int = 11) -> np.ndarray:
+
+def memory_mask(mode: str, raw_dim: int = 11, keep: tuple[str, ...] = MEMORY_PARTS) -> np.ndarray:
     """The (2 raw_dim + 5,) float32 input mask of ``mode``: the observation mask (raw_dim,)
-    on the current and the previous observation, ones on the one-hot of the previous move."""
+    on the current and the previous observation, ones on the one-hot of the previous move;
+    a memory part not in ``keep`` (the ablations: the previous move alone, the previous
+    observation alone) is zeroed."""
     mask = observation_mask(mode, raw_dim)
     patch = raw_dim - 2
-    ones = np.ones(NUM_ACTIONS, dtype=np.float32)
-    return np.concatenate([mask[:patch], mask, ones, mask[patch:]]).astype(np.float32)
+    previous = mask if "observation" in keep else np.zeros_like(mask)
+    move = np.full(NUM_ACTIONS, 1.0 if "move" in keep else 0.0, dtype=np.float32)
+    return np.concatenate([mask[:patch], previous, move, mask[patch:]]).astype(np.float32)
 
 
 def augment(raw: np.ndarray, prev_raw: np.ndarray, prev_action: np.ndarray) -> np.ndarray:
@@ -105,12 +110,14 @@ class OneStepMemoryPolicy(nn.Module):
     ``cat(obs[:, :9], h, onehot(prev_action), obs[:, 9:]) * mask`` (27), ``h_next`` the
     masked observation ``obs * obs_mask``; ``initial_state(B)`` is zeros [B, 11]."""
 
-    def __init__(self, network: MessagingQNetwork, mode: str) -> None:
+    def __init__(
+        self, network: MessagingQNetwork, mode: str, keep: tuple[str, ...] = MEMORY_PARTS
+    ) -> None:
         super().__init__()
         network = exportable_copy(network)
         self.network = network
         raw_dim = (network.hidden.weight.shape[1] - NUM_ACTIONS) // 2
-        self.register_buffer("mask", torch.from_numpy(memory_mask(mode, raw_dim)))
+        self.register_buffer("mask", torch.from_numpy(memory_mask(mode, raw_dim, keep)))
         self.register_buffer("obs_mask", torch.from_numpy(observation_mask(mode, raw_dim).copy()))
 
     @torch.jit.export
@@ -128,10 +135,12 @@ class OneStepMemoryPolicy(nn.Module):
         return q_values, message, obs * self.obs_mask
 
 
-def export_one_step(network: MessagingQNetwork, mode: str, path: str | Path) -> Path:
+def export_one_step(
+    network: MessagingQNetwork, mode: str, path: str | Path, keep: tuple[str, ...] = MEMORY_PARTS
+) -> Path:
     """Script ``network`` (input 27) as a :class:`OneStepMemoryPolicy` of ``mode`` and save
     it atomically (``models.save_scripted``: equal weights give byte-identical files)."""
-    return save_scripted(OneStepMemoryPolicy(network, mode), path)
+    return save_scripted(OneStepMemoryPolicy(network, mode, keep), path)
 
 
 class OneStepMemoryTrainer(DQNTrainer):
@@ -145,10 +154,12 @@ class OneStepMemoryTrainer(DQNTrainer):
     need a second previous observation in the replay."""
 
     vector_env_class = OneStepMemoryEnv
+    memory_inputs: tuple[str, ...] = MEMORY_PARTS  # an ablation keeps one of them
 
     def input_mask(self) -> torch.Tensor:
-        """(27,) float32: :func:`memory_mask` of the mode."""
-        return torch.from_numpy(memory_mask(self.mode, self.env.obs_window**2 + 2))
+        """(27,) float32: :func:`memory_mask` of the mode and the memory inputs kept."""
+        raw_dim = self.env.obs_window**2 + 2
+        return torch.from_numpy(memory_mask(self.mode, raw_dim, self.memory_inputs))
 
     def save_models(self, folder: Path | None = None) -> list[Path]:
         """Export both agents as :class:`OneStepMemoryPolicy` files
@@ -156,6 +167,11 @@ class OneStepMemoryTrainer(DQNTrainer):
         folder = self.models_dir if folder is None else folder
         folder.mkdir(parents=True, exist_ok=True)
         return [
-            export_one_step(self.online.agent(i), self.mode, folder / f"{self.name}_agent_{a}.pt")
+            export_one_step(
+                self.online.agent(i),
+                self.mode,
+                folder / f"{self.name}_agent_{a}.pt",
+                self.memory_inputs,
+            )
             for i, a in enumerate("AB")
         ]
