@@ -31,6 +31,9 @@ OPTIONAL_INPUTS = {
     "panel-study": "problem2/results/studies/panel/panel.json",
     "panel-long": "problem2/results/studies/panel/long/panel_long.json",
     "memory-panel": "problem2/results/studies/memory_panel/memory_panel.json",
+    "memory-why": "problem2/results/studies/memory_panel/why/why.json",
+    "one-step-unseen": "problem2/results/studies/one_step_unseen/unseen.json",
+    "one-step-levers": "problem2/results/studies/one_step_unseen_levers/levers.json",
 }
 
 
