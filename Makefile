@@ -10,7 +10,7 @@ REPORT_STAMP  := $(VENV)/.report-installed
 
 .PHONY: all problem1 problem2 studies beyond p2-baselines p2-main p2-studies p2-panel p2-map-pool \
 	p2-stability p2-memory p2-memory-levers p2-memory-panel p2-one-step-unseen p2-one-step-levers \
-	p2-evaluate report \
+	p2-memory-why p2-evaluate report \
 	test lint \
 	bench clean
 
@@ -60,7 +60,8 @@ studies: p2-main p2-studies p2-evaluate p2-panel p2-memory-panel
 ## Beyond the default task (measured times are in the README): agents on a pool of generated maps,
 ## the stability study, agents with memory (GRU, and one step) and the levers tried on them (each
 ## writes its own results; `make p2-evaluate` reads only the main experiment and `make studies`').
-beyond: p2-map-pool p2-stability p2-memory p2-memory-levers p2-one-step-unseen p2-one-step-levers
+beyond: p2-map-pool p2-stability p2-memory p2-memory-levers p2-one-step-unseen p2-one-step-levers \
+	p2-memory-why
 
 p2-studies: $(RUNTIME_STAMP)
 	cd problem2 && for reward in per_step arrival; do \
@@ -113,6 +114,10 @@ p2-one-step-unseen: $(RUNTIME_STAMP)
 
 p2-one-step-levers: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.one_step.unseen --levers
+
+## Why one step of memory is enough (reads the memory panel's agents; trains its ablations).
+p2-memory-why: $(RUNTIME_STAMP)
+	cd problem2 && $(PY) -m studies.one_step.why --train
 
 ## The written report, built from the result files (seconds). Your name on the cover:
 ##   make report NAME="Full Name" EMAIL="you@usc.edu"   (only values given on this command line)
