@@ -107,6 +107,8 @@ def draw_evaluation(out: Path) -> None:
 def draw_studies(out: Path) -> None:
     from studies import map_pool_study
     from studies.memory import study as memory_study
+    from studies.one_step import unseen, why
+    from studies.one_step.panel_outputs import plot_panel
     from studies.panel_outputs import plot_effects
     from studies.reward_study_outputs import plot_study
 
@@ -118,6 +120,14 @@ def draw_studies(out: Path) -> None:
     panel = studies / "panel" / "panel.json"
     if panel.is_file():  # the report places the panel's figure only when the panel has run
         plot_effects(out / "panel_effects.png", read_json(panel))
+    memory_panel = studies / "memory_panel"
+    if (memory_panel / "memory_panel.json").is_file():
+        plot_panel(out / "memory_panel.png", read_json(memory_panel / "memory_panel.json"))
+    if (memory_panel / "why" / "why.json").is_file():
+        shown = read_json(memory_panel / "why" / "why.json")["shown_episodes"]
+        why.plot_episodes(out / "why.png", shown)
+    if (studies / "one_step_unseen" / "unseen.json").is_file():
+        unseen.plot(out / "unseen.png", read_json(studies / "one_step_unseen" / "unseen.json"))
 
 
 def printed_sizes(figure: Figure, tight: bool, placed: float) -> tuple[float, int]:

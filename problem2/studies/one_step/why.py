@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from analysis.episodes import explore_by_step, model_policy, recorded_episodes
-from analysis.plots import draw_map, draw_paths, episode_trace, save_figure
+from analysis.plots import EpisodeTrace, draw_map, draw_paths, episode_trace, save_figure
 from analysis.stats import seed_statistics
 from batch.experiments import run_experiments
 from batch.plumbing import make_console_safe, write_json_atomic
@@ -234,18 +234,29 @@ def measure_map(map_seed: int, episodes: int) -> tuple[dict, dict]:
     return entry, {"grid": grid, "memoryless": memoryless_episodes, "memory": memory_episodes}
 
 
-def plot_episodes(path: Path, shown: dict) -> int:
+def shown_episodes(shown: dict) -> dict:
     """The first test episode of seed 641 that the memoryless pair fails and the memory pair
-    completes, both drawn from the same start cells and exploration draws; returns its index."""
+    completes (the same start cells and exploration draws): its index, the map, and each
+    pair's cells (L + 1, 2, 2) and outcome, as the figure draws them."""
     memoryless, memory = shown["memoryless"], shown["memory"]
     picked = np.flatnonzero(~memoryless.successes & memory.successes)
     index = int(picked[0]) if len(picked) else 0
-    fig = Figure(figsize=(6.5, 3.3), layout="constrained")
-    for ax, (label, results) in zip(
-        fig.subplots(1, 2), (("no memory", memoryless), ("one step of memory", memory)), strict=True
-    ):
+    pairs = {}
+    for label, results in (("memoryless", memoryless), ("memory", memory)):
         trace = episode_trace(results, index)
-        draw_map(ax, shown["grid"], star_size=12)
+        pairs[label] = {"cells": trace.positions.tolist(), "success": trace.success}
+    return {"index": index, "grid": shown["grid"].tolist(), "episodes": pairs}
+
+
+def plot_episodes(path: Path, episodes: dict) -> None:
+    """The two pairs of :func:`shown_episodes` side by side on the map."""
+    fig = Figure(figsize=(6.5, 3.3), layout="constrained")
+    labels = {"memoryless": "no memory", "memory": "one step of memory"}
+    for ax, (key, label) in zip(fig.subplots(1, 2), labels.items(), strict=True):
+        shown = episodes["episodes"][key]
+        cells = np.asarray(shown["cells"])
+        trace = EpisodeTrace(cells, np.zeros((len(cells) - 1, 2)), shown["success"])
+        draw_map(ax, np.asarray(episodes["grid"]), star_size=12)
         draw_paths(ax, trace, marker_scale=0.8)
         outcome = "meets" if trace.success else "fails"
         ax.set_title(f"{label}: {outcome} in {trace.length} steps", fontsize=FONT + 1)
@@ -255,10 +266,9 @@ def plot_episodes(path: Path, shown: dict) -> int:
     handles, labels = fig.axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside lower center", ncols=4, fontsize=FONT, frameon=False)
     save_figure(fig, path, dpi=200)
-    return index
 
 
-def summarise(entries: list[dict], episodes: int, shown_map: int, shown_index: int) -> dict:
+def summarise(entries: list[dict], episodes: int, shown: dict) -> dict:
     return {
         "protocol": {
             "maps": list(MAPS),
@@ -279,9 +289,10 @@ def summarise(entries: list[dict], episodes: int, shown_map: int, shown_index: i
             "stand_ins": "the map panel's replacements of each channel (delta success at eps "
             "0.05): another episode's value at the same step, at a random step, the episode's "
             "own values shuffled in time, the run's mean",
-            "figure": f"map {shown_map}, seed {SEEDS[0]}, test episode {shown_index}",
+            "figure": f"map {MAPS[0]}, seed {SEEDS[0]}, test episode {shown['index']}",
         },
         "maps": {str(e["map_seed"]): e for e in entries},
+        "shown_episodes": shown,
     }
 
 
@@ -316,8 +327,8 @@ def main(argv: list[str] | None = None) -> dict:
             + ", ".join(f"{k} {v['eps']['mean']:.3f}" for k, v in entry["success"].items())
         )
     WHY_DIR.mkdir(parents=True, exist_ok=True)
-    index = plot_episodes(WHY_DIR / "why.png", shown)
-    results = summarise(entries, args.num_episodes, MAPS[0], index)
+    results = summarise(entries, args.num_episodes, shown_episodes(shown))
+    plot_episodes(WHY_DIR / "why.png", results["shown_episodes"])
     write_json_atomic(WHY_DIR / "why.json", results)
     print(f"wrote {WHY_DIR}")
     return results
