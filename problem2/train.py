@@ -27,7 +27,7 @@ from models import observation_mask, use_reproducible_matmul
 from replay_buffer import ReplayBuffer
 from rollout import EVAL_SEED, Rollout
 from train_config import TrainConfig
-from trainer import EVAL_EPSILON, DQNTrainer
+from trainer import EVAL_EPSILON, DQNTrainer, step_fields
 
 __all__ = ["EVAL_EPSILON", "MultiAgentTrainer", "TrainConfig", "apply_observation_mask", "main"]
 
@@ -128,14 +128,8 @@ class MultiAgentTrainer(DQNTrainer):
             return super().store(
                 rollout, actions, messages, rewards, next_obs, terminated, truncated
             )
-        obs = rollout.obs
         buffer.push_batch(
-            state_A=obs[:, 0],
-            state_B=obs[:, 1],
-            action_A=actions[:, 0],
-            action_B=actions[:, 1],
-            comm_A=messages[:, 0],
-            comm_B=messages[:, 1],
+            **step_fields(rollout.obs, actions, messages),
             reward=rewards,
             next_state_A=next_obs[:, 0],
             next_state_B=next_obs[:, 1],

@@ -45,6 +45,21 @@ from vector_env import VectorMultiAgentEnv
 LAST_WEIGHTS = "last_weights"  # subfolder of agent_models/: each run's final weights (keep_best)
 
 
+def step_fields(
+    obs: np.ndarray, actions: np.ndarray, messages: np.ndarray
+) -> dict[str, np.ndarray]:
+    """The course's fields of the transitions starting now: obs (N, 2, D), actions and
+    messages (N, 2) as ``state_A``, ``state_B``, ``action_A``, ... ``comm_B``."""
+    return {
+        "state_A": obs[:, 0],
+        "state_B": obs[:, 1],
+        "action_A": actions[:, 0],
+        "action_B": actions[:, 1],
+        "comm_A": messages[:, 0],
+        "comm_B": messages[:, 1],
+    }
+
+
 @dataclass
 class Checkpoint:
     """The weights of one periodic evaluation and their results on the validation episodes
@@ -232,15 +247,7 @@ class DQNTrainer:
         (:class:`rollout.NStepWindow`), each with both agents' observations one step before
         its start (DIAL); ``next_obs`` is the true one also where an episode was cut off."""
         obs = rollout.obs
-        one_step = {
-            "state_A": obs[:, 0],
-            "state_B": obs[:, 1],
-            "action_A": actions[:, 0],
-            "action_B": actions[:, 1],
-            "comm_A": messages[:, 0],
-            "comm_B": messages[:, 1],
-        }
-        start = one_step | {
+        start = step_fields(obs, actions, messages) | {
             "prev_state_A": rollout.prev_obs[:, 0],
             "prev_state_B": rollout.prev_obs[:, 1],
             "has_prev": rollout.has_prev,

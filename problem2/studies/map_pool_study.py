@@ -65,7 +65,14 @@ from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED
 from train_config import MODES, SettingError, available_cores, check_value, int_in
 
 from studies.pool_training import PoolConfig, PoolTrainer
-from studies.staging import best_env_steps, best_selection, check_field, staged_output, write_timing
+from studies.staging import (
+    best_env_steps,
+    best_selection,
+    check_field,
+    staged_output,
+    train_into,
+    write_timing,
+)
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "map_pool"
 RECIPE: dict[str, Any] = dict(
@@ -120,13 +127,7 @@ def train_and_test(
     # With a map pool only the grid size, window and time limit of this env are used.
     env = MultiAgentEnv(grid_size=cfg.grid_shape(), max_steps=cfg.max_steps, seed=cfg.map_seed)
     trainer = PoolTrainer(env, run_cfg)
-    trainer.models_dir, trainer.logs_dir = staging / "agent_models", staging / "training_logs"
-
-    def report(row: dict[str, Any]) -> None:
-        if progress is not None:
-            progress.put((trainer.name, row, time.perf_counter() - start))
-
-    trainer.train(report)
+    train_into(trainer, staging, progress, start)
     trained = time.perf_counter() - start
     rates = held_out_success(
         lambda grid, map_seed, epsilon: trainer.policy(epsilon, seed=EVAL_SEED + map_seed),

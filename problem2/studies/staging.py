@@ -1,12 +1,14 @@
 """What the studies share: an output folder written whole (everything goes into a staging
 folder beside it, which replaces the folder only when the block succeeds: an interrupted
 study leaves the previous results, never half of new ones), the timing file, a study
-flag checked by a TrainConfig field's rule, and the checkpoint a trainer selected."""
+flag checked by a TrainConfig field's rule, a run trained into a folder with its progress
+reported, and the checkpoint a trainer selected."""
 
 from __future__ import annotations
 
 import os
 import shutil
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -69,3 +71,19 @@ def best_selection(trainer: DQNTrainer) -> dict[str, float]:
     if best is None:
         return {}
     return {c: getattr(best, c)["success_rate"] for c in ("greedy", "eps")}
+
+
+def train_into(
+    trainer: DQNTrainer, folder: Path, progress: Any, start: float, label: str | None = None
+) -> list[dict[str, Any]]:
+    """Train ``trainer`` with its models and logs under ``folder`` (``agent_models/``,
+    ``training_logs/``), sending each evaluation row to ``progress`` (a ``run_jobs`` queue, or
+    None) as (``label`` or the run's name, row, seconds since ``start``). Returns the log."""
+    trainer.models_dir, trainer.logs_dir = folder / "agent_models", folder / "training_logs"
+    name = label or trainer.name
+
+    def report(row: dict[str, Any]) -> None:
+        if progress is not None:
+            progress.put((name, row, time.perf_counter() - start))
+
+    return trainer.train(report)

@@ -33,7 +33,7 @@ from train_config import SettingError, available_cores
 from studies.memory.learner import Levers, RecurrentTrainer
 from studies.memory.study import RECIPE, RESULTS
 from studies.pool_training import PoolConfig
-from studies.staging import best_env_steps, best_selection, check_field, staged_output
+from studies.staging import best_env_steps, best_selection, check_field, staged_output, train_into
 
 OUTPUT_DIR = RESULTS / "memory_levers"
 SETTINGS: dict[str, dict[str, Any]] = {
@@ -60,14 +60,7 @@ def train_setting(
     run_cfg = dataclasses.replace(cfg, seed=seed, seeds=[], workers=1, **changes)
     env = MultiAgentEnv(grid_size=cfg.grid_shape(), max_steps=cfg.max_steps, seed=cfg.map_seed)
     trainer = RecurrentTrainer(env, run_cfg, mode, levers)
-    trainer.models_dir = folder / setting / "agent_models"
-    trainer.logs_dir = folder / setting / "training_logs"
-
-    def report(row: dict[str, Any]) -> None:
-        if progress is not None:
-            progress.put((f"{setting}/{trainer.name}", row, time.perf_counter() - start))
-
-    log = trainer.train(report)
+    log = train_into(trainer, folder / setting, progress, start, f"{setting}/{trainer.name}")
     shutil.rmtree(trainer.models_dir, ignore_errors=True)  # judged by validation only
     last = log[-1]
     return {

@@ -52,7 +52,14 @@ from studies.memory.held_out_tests import (
 )
 from studies.memory.learner import TRANSITIONS_PER_EPISODE, RecurrentTrainer
 from studies.pool_training import PoolConfig
-from studies.staging import best_env_steps, best_selection, check_field, staged_output, write_timing
+from studies.staging import (
+    best_env_steps,
+    best_selection,
+    check_field,
+    staged_output,
+    train_into,
+    write_timing,
+)
 
 RESULTS = Path(__file__).resolve().parents[2] / "results" / "studies"
 STUDY_DIR = RESULTS / "memory"
@@ -79,13 +86,7 @@ def train_and_test(
     run_cfg = dataclasses.replace(cfg, seed=seed, seeds=[], workers=1)
     env = MultiAgentEnv(grid_size=cfg.grid_shape(), max_steps=cfg.max_steps, seed=cfg.map_seed)
     trainer = RecurrentTrainer(env, run_cfg, mode)
-    trainer.models_dir, trainer.logs_dir = staging / "agent_models", staging / "training_logs"
-
-    def report(row: dict[str, Any]) -> None:
-        if progress is not None:
-            progress.put((trainer.name, row, time.perf_counter() - start))
-
-    trainer.train(report)
+    train_into(trainer, staging, progress, start)
     trained = time.perf_counter() - start
     agents = tuple(load_policy(trainer.models_dir / f"{trainer.name}_agent_{a}.pt") for a in "AB")
     tested = held_out_results(agents, mode, episodes, cfg.max_steps)

@@ -42,7 +42,7 @@ from studies.memory import study as gru_study
 from studies.memory.held_out_tests import CONDITIONS, beacon_homing, held_out_results
 from studies.one_step.agents import OneStepMemoryEnv, OneStepMemoryTrainer
 from studies.pool_training import PoolConfig, PooledVectorEnv, PoolTrainer
-from studies.staging import best_env_steps, best_selection, staged_output, write_timing
+from studies.staging import best_env_steps, best_selection, staged_output, train_into, write_timing
 
 RESULTS = gru_study.RESULTS
 STUDY_DIR = RESULTS / "one_step_unseen"
@@ -89,13 +89,7 @@ def train(cfg: PoolConfig, staging: Path, progress: Any, start: float) -> Pooled
     torch.set_num_threads(1)
     env = MultiAgentEnv(grid_size=cfg.grid_shape(), max_steps=cfg.max_steps, seed=cfg.map_seed)
     trainer = PooledOneStepTrainer(env, cfg)
-    trainer.models_dir, trainer.logs_dir = staging / "agent_models", staging / "training_logs"
-
-    def report(row: dict[str, Any]) -> None:
-        if progress is not None:
-            progress.put((trainer.name, row, time.perf_counter() - start))
-
-    trainer.train(report)
+    train_into(trainer, staging, progress, start)
     return trainer
 
 
