@@ -83,6 +83,16 @@ def memory_pair_policy(
     return memory_policy(agents, env, draws=exploration(env, epsilon))
 
 
+def pair_policy(agents: tuple, env: VectorMultiAgentEnv, epsilon: float) -> PolicyFn:
+    """An exported pair on the panel's protocol: memory-contract agents (``initial_state``)
+    with the move made fed back, memoryless ones (``model(obs) -> (q, message)``) through
+    ``model_policy``; both with the panel's exploration draws."""
+    if hasattr(agents[0], "initial_state"):
+        return memory_pair_policy(agents, env, epsilon)
+    n = env.n_envs
+    return explore_by_step(model_policy(*agents), env, np.full(n, epsilon), n, EVAL_SEED)
+
+
 def successes(
     models_dir: Path, mode: str, seed: int, grid: np.ndarray, max_steps: int, episodes: int
 ) -> dict[str, np.ndarray]:
@@ -94,11 +104,7 @@ def successes(
     result = {}
     for condition, epsilon in CONDITIONS.items():
         env = VectorMultiAgentEnv(episodes, grid=grid, max_steps=max_steps)
-        if hasattr(agents[0], "initial_state"):
-            policy = memory_pair_policy(agents, env, epsilon)
-        else:
-            greedy = model_policy(*agents)
-            policy = explore_by_step(greedy, env, np.full(episodes, epsilon), episodes, EVAL_SEED)
+        policy = pair_policy(agents, env, epsilon)
         result[condition] = run_episodes(env, policy, episodes, seed=EVAL_SEED).successes
     return result
 

@@ -33,14 +33,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from analysis.episodes import explore_by_step, model_policy, recorded_episodes
+from analysis.episodes import recorded_episodes
 from analysis.plots import EpisodeTrace, draw_map, draw_paths, episode_trace, save_figure
 from analysis.stats import seed_statistics
 from batch.experiments import run_experiments
 from batch.plumbing import make_console_safe, write_json_atomic
 from matplotlib.figure import Figure
 from models import use_reproducible_matmul
-from rollout import EVAL_SEED, PolicyFn, run_episodes
+from rollout import EVAL_SEED, run_episodes
 from train_config import TrainConfig, available_cores
 from vector_env import VectorMultiAgentEnv
 
@@ -51,7 +51,7 @@ from studies.one_step.panel import (
     MEMORY_PANEL_DIR,
     SEEDS,
     exploration,
-    memory_pair_policy,
+    pair_policy,
     read_batch,
 )
 from studies.panel import PANEL_DIR
@@ -113,15 +113,6 @@ class Intervened:
         return self.agent(obs, prev, h)
 
 
-def pair_policy(agents: tuple, env: VectorMultiAgentEnv, epsilon: float) -> PolicyFn:
-    """The pair on the panel's protocol: memory agents with the move made fed back,
-    memoryless ones through ``model_policy``, both with the panel's exploration draws."""
-    if hasattr(agents[0], "initial_state"):
-        return memory_pair_policy(agents, env, epsilon)
-    n = env.n_envs
-    return explore_by_step(model_policy(*agents), env, np.full(n, epsilon), n, EVAL_SEED)
-
-
 def load_pair(models_dir: Path, seed: int) -> tuple:
     return tuple(torch.jit.load(str(models_dir / f"{MODE}_seed{seed}_agent_{a}.pt")) for a in "AB")
 
@@ -140,19 +131,21 @@ def success_rates(models_dir: Path, grid: np.ndarray, max_steps: int, episodes: 
     return rates
 
 
-def intervention_deltas(models_dir: Path, grid: np.ndarray, max_steps: int, episodes: int) -> dict:
-    """Per intervention and condition the success change (S,) against the real memory."""
+def intervention_deltas(
+    models_dir: Path, grid: np.ndarray, max_steps: int, episodes: int, real: dict
+) -> dict:
+    """Per intervention and condition the success change (S,) against the real memory, whose
+    success rates ``real`` (:func:`success_rates` of the same pairs) already measured."""
     deltas = {k: {c: [] for c in CONDITIONS} for k in INTERVENTIONS}
-    for seed in SEEDS:
+    for index, seed in enumerate(SEEDS):
         agents = load_pair(models_dir, seed)
         for condition, epsilon in CONDITIONS.items():
             env = VectorMultiAgentEnv(episodes, grid=grid, max_steps=max_steps)
-            real = run_episodes(env, pair_policy(agents, env, epsilon), episodes, EVAL_SEED)
             for kind in INTERVENTIONS:
                 wrapped = tuple(Intervened(a, kind, seed + i) for i, a in enumerate(agents))
                 policy = memory_policy(wrapped, env, draws=exploration(env, epsilon))
                 probed = run_episodes(env, policy, episodes, EVAL_SEED)
-                change = float(probed.successes.mean() - real.successes.mean())
+                change = float(probed.successes.mean() - real[condition][index])
                 deltas[kind][condition].append(change)
     return deltas
 
@@ -220,7 +213,7 @@ def measure_map(map_seed: int, episodes: int) -> tuple[dict, dict]:
     success["memoryless"] = success_rates(memoryless_dir, *args)
     memory_behaviour, memory_episodes = behaviour(memory_dir, *args)
     memoryless_behaviour, memoryless_episodes = behaviour(memoryless_dir, *args)
-    deltas = intervention_deltas(memory_dir, *args)
+    deltas = intervention_deltas(memory_dir, *args, success["memory"])
     entry = {
         "map_seed": map_seed,
         "target": np.argwhere(grid == 2)[0].tolist(),
