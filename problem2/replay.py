@@ -77,6 +77,7 @@ class ReplayBuffer:
                 "every field needs the same non-zero leading (batch) dimension; "
                 f"got shapes { {name: a.shape for name, a in arrays.items()} }"
             )
+        self._check_transitions(arrays)
         if not self._arrays:
             self._allocate(arrays)
         self._check_like_first_push(arrays)
@@ -116,6 +117,9 @@ class ReplayBuffer:
                 raise ValueError(
                     f"{name} has per-transition shape {value.shape[1:]}, the buffer holds {shape}"
                 )
+
+    def _check_transitions(self, arrays: dict[str, np.ndarray]) -> None:
+        """Hook: check a push's values (the course's buffer does; the trainer's come checked)."""
 
     def _stored(self, slots: np.ndarray) -> None:
         """Called with the slots of every push (prioritised replay sets their priority)."""

@@ -100,12 +100,12 @@ class ReplayBuffer(replay.ReplayBuffer):
         self.push_batch(**{name: as_array(name, value)[None] for name, value in fields.items()})
 
     def push_batch(self, **arrays: np.ndarray) -> np.ndarray:
-        """:meth:`replay.ReplayBuffer.push_batch` after :func:`check_transitions`."""
-        arrays = {name: as_array(name, value) for name, value in arrays.items()}
-        lengths = {value.shape[0] if value.ndim else 0 for value in arrays.values()}
-        if set(TRANSITION_FIELDS) <= set(arrays) and len(lengths) == 1:
-            check_transitions(arrays)  # otherwise the core names what is missing or uneven
-        return super().push_batch(**arrays)
+        """:meth:`replay.ReplayBuffer.push_batch` of the fields as arrays (a tensor that
+        requires grad refused by name), each push's values checked (:func:`check_transitions`)."""
+        return super().push_batch(**{name: as_array(name, v) for name, v in arrays.items()})
+
+    def _check_transitions(self, arrays: dict[str, np.ndarray]) -> None:
+        check_transitions(arrays)
 
     def sample(self, batch_size: int) -> tuple[np.ndarray, ...]:
         """Uniform sample with replacement: the ten required arrays in interface order,
