@@ -76,7 +76,7 @@ def plot_policies(results: list[dict[str, Any]]) -> Figure:
     visualizer = GridWorldVisualizer()
     decision = ~visualizer.absorbing_cells.reshape(-1)  # goal and obstacles are fixed at 0
     all_values = np.concatenate([np.array(r["values"])[decision] for r in results])
-    fig = Figure(figsize=(6.5, 5.4), layout="constrained")
+    fig = Figure(figsize=(6.2, 5.2), layout="constrained")
     axes = fig.subplots(2, 3, sharex=True, sharey=True)
     for result, ax in zip(results, axes.flat, strict=True):
         image = visualizer.draw_grid(

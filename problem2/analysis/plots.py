@@ -196,8 +196,8 @@ def plot_trajectories(
     """One row per mode (label, [successful episode, failed or longest successful episode]);
     None draws an empty panel saying that no such episode occurred. With ``messages`` (one
     mean message per cell (2, H, W) per row), two more columns show what each agent says
-    where, on the colour scale of that row's range (its colour bar beside it): the
-    strategy's route and its message in one figure."""
+    where, every row on one colour scale from 0 to 1: the strategy's route and its message
+    in one figure."""
     columns = 2 if messages is None else 4
     width = WIDTHS["trajectories"] if messages is None else WIDTHS["strategies"]
     height = (2.45 if messages is None else 2.1) * len(rows) + 1.0
@@ -208,7 +208,12 @@ def plot_trajectories(
         if messages is not None:
             fig.get_layout_engine().set(h_pad=0.08, hspace=0.06)  # titles clear of the row above
             for means, row_axes in zip(messages, axes[:, 2:], strict=True):
-                draw_message_row(fig, row_axes, grid, means, [f"message sent by {a}" for a in "AB"])
+                for agent, ax in zip("AB", row_axes, strict=True):
+                    image = draw_message_map(ax, grid, means["AB".index(agent)])
+                    ax.set_title(f"message sent by {agent}", fontsize=MIN_FONT)
+            # One scale, the channel's whole range, for every row: rows compare directly.
+            bar = fig.colorbar(image, ax=axes[:, 2:], shrink=0.5, aspect=20)
+            bar.set_label("mean message", fontsize=MIN_FONT)
             for ax in axes[:, 1:].flat:
                 ax.set_ylabel("")
                 ax.set_yticklabels([])

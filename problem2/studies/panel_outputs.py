@@ -18,7 +18,7 @@ MODE_ORDER = ("independent", "comm", "distance", "full")
 ASSIGNMENT_MAP = 641
 VERDICT_MARKS = {"gain": "+", "loss": "-", "unclear": ""}
 FIGURE_WIDTH = 6.3  # inches (16 cm): the report places the figure at this width
-FONT = 7  # points at that width
+FONT = 8  # points at that width
 
 
 def panel_summary(results: dict[str, Any]) -> dict[str, dict]:
@@ -91,7 +91,7 @@ def contrast_text(coefficients: dict[str, float]) -> str:
 def plot_effects(path: Path, results: dict[str, Any]) -> None:
     """``panel_effects.png``: one panel per effect (ε = 0.05), each map's effect against the
     map property with its 95 % interval; filled markers where the interval excludes 0, the
-    assignment's map in red; map seeds beside the points."""
+    assignment's map in red; map seeds beside the filled points and the assignment's."""
     prop = results["protocol"]["property"]["name"]
     effects = list(results["protocol"]["effects"])
     maps = list(results["maps"].values())
@@ -116,11 +116,14 @@ def plot_effects(path: Path, results: dict[str, Any]) -> None:
                 capsize=1.5,
                 mfc=colour if effect["established"] else "white",
             )
+            if not (effect["established"] or assignment):
+                continue  # unlabelled points near 0 would pile up; panel.csv names them
             ax.annotate(
                 str(entry["map_seed"]),
                 (position, mean),
-                xytext=(3, 2),
+                xytext=(-3, -9) if assignment else (3, 2),  # 641 below-left, clear of its row
                 textcoords="offset points",
+                ha="right" if assignment else "left",
                 fontsize=FONT,
                 color=colour,
             )
@@ -134,8 +137,8 @@ def plot_effects(path: Path, results: dict[str, Any]) -> None:
     axes[0].set_xlim(min(values) - 0.5, max(values) + 0.7)
     for ax in axes[2:]:
         ax.set_xlabel(f"{prop.replace('_', ' ')} (cells)", fontsize=FONT + 1)
-    for ax in axes[::2]:
-        ax.set_ylabel("success difference (points, ε = 0.05)", fontsize=FONT + 1)
+    # One label for both rows: two would overlap at this height.
+    fig.supylabel("success difference (points, ε = 0.05)", fontsize=FONT + 1)
     handles = [
         axes[0].errorbar([], [], [], fmt="s", color="#2c5d8f", ms=4.5, label=label, mfc=face)
         for label, face in (("interval excludes 0", "#2c5d8f"), ("interval includes 0", "white"))

@@ -1,6 +1,6 @@
 """Every figure the report places is legible when printed: each one is redrawn from the
 committed results by the code that writes it, and its smallest text, scaled to the width
-at which the report places the image, is at least 7 pt; one legend at most per figure."""
+at which the report places the image, is at least 8 pt; one legend at most per figure."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ _spec = importlib.util.spec_from_file_location("report_build", ROOT / "report" /
 build = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(build)
 
-MIN_PRINTED_POINTS = 7.0
+MIN_PRINTED_POINTS = 8.0
 A4_WIDTH, MARGIN = 595.28, 2.2 / 2.54 * 72  # points; report.typ: a4, margin x 2.2 cm
 TEXT_WIDTH = A4_WIDTH - 2 * MARGIN
 P1_RESULTS = ROOT / "problem1" / "results"
@@ -162,7 +162,7 @@ def drawn(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Figure, b
     return saved
 
 
-def test_every_placed_figure_prints_its_text_at_7_points_or_more(drawn: dict) -> None:
+def test_every_placed_figure_prints_its_text_at_8_points_or_more(drawn: dict) -> None:
     widths = placed_widths()
     assert set(widths) <= set(drawn), f"figures not redrawn here: {set(widths) - set(drawn)}"
     too_small = {}

@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import importlib.util
+import io
 import json
 import shutil
 from pathlib import Path
 
+import matplotlib.image
+import numpy as np
 import pytest
 import typst
 
@@ -111,3 +114,29 @@ def test_the_main_part_holds_problem_1_and_2_in_at_most_12_pages() -> None:
 
 def test_the_answer_to_the_question_ends_on_the_first_page() -> None:
     assert page_of("answer-end") == 1
+
+
+def test_no_table_splits_across_pages() -> None:
+    def pages(label: str) -> list[int]:
+        found = json.loads(typst.query(str(ROOT / build.MAIN), label, **build.typst_options()))
+        return [marker["value"] for marker in found]
+
+    tops, bottoms = pages("<table-top>"), pages("<table-bottom>")
+    assert len(tops) == len(bottoms) > 10
+    assert [(t, b) for t, b in zip(tops, bottoms, strict=True) if t != b] == []
+
+
+def test_no_page_of_the_main_part_but_its_last_ends_in_its_upper_part() -> None:
+    """Rendered, every main page but the last carries text or figures down to at least 70 %
+    of its height (above the bottom margin and its page number)."""
+    options = {k: v for k, v in build.typst_options().items() if k != "format"}
+    pages = typst.compile(str(ROOT / build.MAIN), format="png", ppi=20, **options)
+    start, end = page_of("main-start"), page_of("main-end")
+    filled = {}
+    for number in range(start, end):
+        grey = matplotlib.image.imread(io.BytesIO(pages[number - 1]), format="png")[..., :3]
+        height = grey.shape[0]
+        body = grey[: int(height * (1 - 2.4 / 29.7))].mean(axis=2)  # report.typ: bottom 2.4 cm
+        inked = np.flatnonzero((body < 0.9).any(axis=1))
+        filled[number] = (inked.max() + 1) / height
+    assert {n: round(f, 2) for n, f in filled.items() if f < 0.7} == {}
