@@ -47,19 +47,23 @@ def measure(repo: Path, updates: int) -> dict[str, float]:
     sys.path.insert(0, str(repo / "problem2"))
     from multi_agent_env import MultiAgentEnv
     from train_config import TrainConfig
-    from trainer import MultiAgentTrainer
+
+    try:  # the core learner; older checkouts named their trainer MultiAgentTrainer
+        from trainer import DQNTrainer as Trainer
+    except ImportError:
+        from trainer import MultiAgentTrainer as Trainer
 
     known = TrainConfig.__dataclass_fields__
     results: dict[str, float] = {}
     with tempfile.TemporaryDirectory() as scratch:
         os.chdir(scratch)  # a checkout that writes files from train() writes them here
 
-        def trainer_for(mode: str, **settings: object) -> MultiAgentTrainer:
+        def trainer_for(mode: str, **settings: object) -> Trainer:
             settings = {"mode": mode, "eval_episodes": 10, "output_dir": scratch} | settings
             cfg = TrainConfig(**{k: v for k, v in settings.items() if k in known})
-            return MultiAgentTrainer(MultiAgentEnv(seed=641), cfg)
+            return Trainer(MultiAgentEnv(seed=641), cfg)
 
-        def filled(mode: str, **settings: object) -> MultiAgentTrainer:
+        def filled(mode: str, **settings: object) -> Trainer:
             trainer = trainer_for(
                 mode,
                 total_steps=FILL_STEPS,

@@ -96,13 +96,31 @@ def aggregate(summaries: list[dict]) -> dict[str, Any]:
     for key in ("success_rate", "mean_steps_to_success", "mean_return"):
         result[key] = seed_statistics([s[key] for s in summaries])
     result["failures"] = {
-        kind: seed_statistics([s["failures"][kind] for s in summaries]) for kind in FAILURE_KINDS
+        kind: seed_statistics([s["failures"][kind] for s in summaries])
+        | {"pooled": pooled_over_failures(summaries, "failures", kind)}
+        for kind in FAILURE_KINDS
     }
-    result["failure_decomposition"] = {
-        key: seed_statistics([s["failure_decomposition"][key] for s in summaries])
-        for key in DECOMPOSITION
-    }
+    result["failure_decomposition"] = {}
+    for key in DECOMPOSITION:
+        stats = seed_statistics([s["failure_decomposition"][key] for s in summaries])
+        if key in FAILED_EPISODE_KINDS:
+            stats["pooled"] = pooled_over_failures(summaries, "failure_decomposition", key)
+        result["failure_decomposition"][key] = stats
     return result
+
+
+FAILED_EPISODE_KINDS = ("navigation", "timing", "reached_and_left")  # shares of failed episodes
+
+
+def pooled_over_failures(summaries: list[dict], table: str, kind: str) -> float | None:
+    """The share of ``kind`` among the failed episodes of every seed together (each seed's
+    share weighted by its number of failed episodes); None if no seed failed."""
+    failed = [s[table]["failed_episodes"] for s in summaries]
+    shares = [s[table][kind] for s in summaries]
+    total = sum(failed)
+    if total == 0:
+        return None
+    return sum(n * share for n, share in zip(failed, shares, strict=True) if n) / total
 
 
 def _intervention_tests(

@@ -25,6 +25,11 @@ def _per_seed(stat: dict) -> str:
     return ", ".join("–" if v is None else f"{v:.2f}" for v in stat["per_seed"])
 
 
+def _decomposed(stat: dict) -> str:
+    """A share of failed episodes pooled over seeds where there is one, else the seed mean."""
+    return _number(stat["pooled"], 3) if "pooled" in stat else _stat(stat)
+
+
 def _number(value: float | None, digits: int = 2) -> str:
     return "–" if value is None else f"{value:.{digits}f}"
 
@@ -110,13 +115,13 @@ def failure_section(performance: dict) -> list[str]:
             for condition in ("greedy", "eps"):
                 failures = entry[condition]["failures"]
                 failed = 1 - entry[condition]["success_rate"]["mean"]
-                shares = [_number(failures[kind]["mean"]) for kind in FAILURE_KINDS]
+                shares = [_number(failures[kind]["pooled"]) for kind in FAILURE_KINDS]
                 rows.append([name, entry["label"], condition, f"{failed:.3f}", *shares])
     definitions = performance["protocol"]["failure_definitions"]
     notes = [f"- **{kind}**: {text}" for kind, text in definitions.items()]
     header = ["experiment", "mode", "condition", "failed", *FAILURE_KINDS]
     return [
-        "## How episodes fail (share of failed episodes, mean over seeds)",
+        "## How episodes fail (share of the failed episodes of all seeds together)",
         "",
         *notes,
         "",
@@ -243,13 +248,15 @@ def decomposition_section(performance: dict) -> list[str]:
     keys = tuple(DECOMPOSITION)  # the measures in their defined order
     rows = [
         [mode, condition, f"{1 - entry[condition]['success_rate']['mean']:.3f}"]
-        + [_stat(entry[condition]["failure_decomposition"][key]) for key in keys]
+        + [_decomposed(entry[condition]["failure_decomposition"][key]) for key in keys]
         for mode, entry in main["modes"].items()
         for condition in ("greedy", "eps")
     ]
     notes = [f"- **{k}**: {v}" for k, v in performance["protocol"]["failure_decomposition"].items()]
     return [
-        "## Why episodes fail: navigation or timing (main experiment, mean over seeds)",
+        "## Why episodes fail: navigation or timing (main experiment; shares of failed "
+        "episodes: all seeds' failed episodes together; staying shares: mean over seeds "
+        "[95 % CI])",
         "",
         *notes,
         "",
