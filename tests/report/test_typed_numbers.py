@@ -48,9 +48,15 @@ class MarkupNumbers:
     def line(self, i: int) -> int:
         return self.s.count("\n", 0, i) + 1
 
-    def end_of_line(self, i: int) -> int:
-        end = self.s.find("\n", i)
-        return len(self.s) if end < 0 else end
+    def after_comment(self, i: int) -> int | None:
+        """Where the comment starting at ``i`` ends (a line comment: at its newline), or
+        None if no comment starts there."""
+        if self.s.startswith("//", i):
+            end = self.s.find("\n", i)
+            return len(self.s) if end < 0 else end
+        if self.s.startswith("/*", i):
+            return self.s.index("*/", i) + 2
+        return None
 
     def markup(self, i: int, closer: str | None = None) -> int:
         """Markup (``closer`` "]") or math (``closer`` "$") from ``i``; returns the index
@@ -58,10 +64,8 @@ class MarkupNumbers:
         s, depth = self.s, 0
         while i < len(s):
             c = s[i]
-            if s.startswith("//", i):
-                i = self.end_of_line(i)
-            elif s.startswith("/*", i):
-                i = s.index("*/", i) + 2
+            if (after := self.after_comment(i)) is not None:
+                i = after
             elif c == "\\":
                 i += 2
             elif c == "`":
@@ -94,10 +98,8 @@ class MarkupNumbers:
         s = self.s
         while i < len(s):
             c = s[i]
-            if s.startswith("//", i):
-                i = self.end_of_line(i)
-            elif s.startswith("/*", i):
-                i = s.index("*/", i) + 2
+            if (after := self.after_comment(i)) is not None:
+                i = after
             elif c == '"':
                 i += 1
                 while s[i] != '"':
