@@ -140,3 +140,22 @@ def test_no_page_of_the_main_part_but_its_last_ends_in_its_upper_part() -> None:
         inked = np.flatnonzero((body < 0.9).any(axis=1))
         filled[number] = (inked.max() + 1) / height
     assert {n: round(f, 2) for n, f in filled.items() if f < 0.7} == {}
+
+
+def test_page_one_answers_in_at_most_120_words() -> None:
+    """The answer's words as typeset (numbers count as words, a reference as one)."""
+    found = json.loads(typst.query(str(ROOT / build.MAIN), "<answer>", **build.typst_options()))
+    assert len(found) == 1
+
+    def text(node: object) -> str:
+        if isinstance(node, dict):
+            if node.get("func") == "ref":
+                return " reference "
+            own = " " if node.get("func") == "space" else node.get("text", "")
+            return own + "".join(text(v) for k, v in node.items() if k != "text")
+        if isinstance(node, list):
+            return " ".join(text(v) for v in node)
+        return ""
+
+    words = [w for w in text(found[0]).split() if any(c.isalnum() for c in w)]
+    assert 60 <= len(words) <= 120
