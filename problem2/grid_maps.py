@@ -99,6 +99,25 @@ def generate_map(grid_size: tuple[int, int] = (10, 10), seed: int | None = None)
 
 
 # ------------------------------------------------ checks of what callers hand the env
+def is_integer(value: object) -> bool:
+    """A Python or NumPy integer, not a bool."""
+    return isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
+
+
+def positive_int(value: object, name: str) -> int:
+    """``value`` as an int if it is an integer >= 1; ValueError naming ``name`` otherwise."""
+    if not is_integer(value) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def check_seed(seed: object, name: str = "seed") -> int | None:
+    """``None`` or a non-negative integer (what NumPy's generators accept)."""
+    if seed is not None and (not is_integer(seed) or seed < 0):
+        raise ValueError(f"{name} must be None or a non-negative integer, got {seed!r}")
+    return None if seed is None else int(seed)
+
+
 def choose_map(grid_size: tuple[int, int], seed: int | None, grid: np.ndarray | None) -> np.ndarray:
     """The map the copies play, read-only: the checked ``grid``, or the map generated from
     ``seed`` at ``grid_size``."""

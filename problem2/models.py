@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from settings import positive_int
+from grid_maps import positive_int
 from torch import nn
 
 OBSERVATION_DIM = 11  # the default 3 x 3 window: 9 cells, message, distance

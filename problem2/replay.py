@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from settings import positive_int
+from grid_maps import positive_int
 
 TRANSITION_FIELDS = (
     "state_A",

@@ -9,9 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 import replay
-from grid_maps import NUM_ACTIONS
+from grid_maps import NUM_ACTIONS, positive_int
 from replay import TRANSITION_FIELDS, stored_name
-from settings import positive_int
 
 __all__ = ["TRANSITION_FIELDS", "PrioritizedReplayBuffer", "ReplayBuffer", "SumTree"]
 

@@ -1,20 +1,22 @@
-"""How a value is checked, once for the whole of Problem 2: :func:`setting` declares a
-dataclass field of ``train_config.TrainConfig`` (default, help, allowed range); a check maps a
-value to None (allowed) or to the problem, phrased with the allowed range ("must be an integer
->= 1"); :class:`SettingError` carries every problem found, each naming its field (the flag
-``--name``). :func:`is_integer`, :func:`positive_int` and :func:`check_seed` are the checks
-the environment, the networks and the replay buffer apply to their arguments."""
+"""The rules of Problem 2's settings, checked before any work starts: ``RULES`` gives each
+field of ``train_config.TrainConfig`` its allowed range; a check maps a value to None (allowed)
+or to the problem, phrased with the allowed range ("must be an integer >= 1");
+:func:`validated` raises :class:`SettingError` with every problem found, each naming its field
+(the flag ``--name``). The command line and the batch call it; the trainer takes a checked
+config."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
-from collections.abc import Callable, Sequence
-from dataclasses import field
+from collections.abc import Callable, Collection, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+from grid_maps import generate_map, is_integer
+from rollout import SELECT_BY
+from train_config import MAX_GRID_SIDE, MAX_SEED, TRAINABLE_MODES, TrainConfig
 
 Check = Callable[[Any], str | None]
 Problem = tuple[str, str, Any]  # (field name, what is wrong, the value)
@@ -35,25 +37,6 @@ def check_value(name: str, value: Any, check: Check) -> None:
     problem = check(value)
     if problem:
         raise SettingError(name, problem, value)
-
-
-def is_integer(value: object) -> bool:
-    """A Python or NumPy integer, not a bool."""
-    return isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
-
-
-def positive_int(value: object, name: str) -> int:
-    """``value`` as an int if it is an integer >= 1; ValueError naming ``name`` otherwise."""
-    if not is_integer(value) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
-def check_seed(seed: object, name: str = "seed") -> int | None:
-    """``None`` or a non-negative integer (what NumPy's generators accept)."""
-    if seed is not None and (not is_integer(seed) or seed < 0):
-        raise ValueError(f"{name} must be None or a non-negative integer, got {seed!r}")
-    return None if seed is None else int(seed)
 
 
 def int_in(low: int, high: int | None = None) -> Check:
@@ -138,18 +121,105 @@ def one_or_two_ints(low: int, high: int) -> Check:
     return check
 
 
-def setting(
-    default: Any,
-    help: str,
-    check: Check,
-    items: tuple[Callable[[str], Any], str] | None = None,
-) -> Any:
-    """A dataclass field declared once: its default, one-line ``help`` and
-    allowed-range ``check``; ``items`` = (item type, metavar) makes its flag a list flag. A
-    list default, or a function (e.g. the core count), is built anew for each config."""
-    metadata = {"help": help, "check": check, "items": items}
-    if callable(default):
-        return field(default_factory=default, metadata=metadata)
-    if isinstance(default, list):
-        return field(default_factory=lambda: list(default), metadata=metadata)
-    return field(default=default, metadata=metadata)
+def decay_factor(value: Any) -> str | None:
+    """0 (the linear schedule) or the skeleton's multiplicative factor in (0, 1)."""
+    zero = value == 0 and not isinstance(value, bool)
+    if zero or number_in(0.0, 1.0, low_open=True, high_open=True)(value) is None:
+        return None
+    return (
+        "must be 0 (linear schedule) or a multiplicative factor per episode in (0, 1), e.g. 0.995"
+    )
+
+
+RULES: dict[str, Check] = {  # every field of TrainConfig, in its order
+    "mode": mode_list(TRAINABLE_MODES),
+    "seed": int_in(0, MAX_SEED),
+    "num_seeds": int_in(1),
+    "seeds": distinct_ints(0, MAX_SEED),
+    "map_seed": int_in(0, MAX_SEED),
+    "grid_size": one_or_two_ints(3, MAX_GRID_SIDE),
+    "max_steps": int_in(1),
+    "reward_mode": one_of("goal", "per_step", "arrival"),
+    "total_steps": int_in(1),
+    "num_episodes": int_in(0),
+    "num_envs": int_in(1),
+    "batch_size": int_in(1),
+    "lr": number_in(0.0, math.inf, low_open=True, high_open=True),
+    "lr_end_factor": number_in(0.0, 1.0),
+    "gamma": number_in(0.0, 1.0, high_open=True),
+    "n_step": int_in(1),
+    "epsilon_start": number_in(0.0, 1.0),
+    "epsilon_end": number_in(0.0, 1.0),
+    "epsilon_decay": decay_factor,
+    "epsilon_fraction": number_in(0.0, 1.0, low_open=True),
+    "hidden_dim": int_in(1),
+    "target_update": int_in(0),
+    "target_tau": number_in(0.0, 1.0, low_open=True),
+    "buffer_size": int_in(1),
+    "learning_starts": int_in(0),
+    "updates_per_step": int_in(1),
+    "max_grad_norm": number_in(0.0, math.inf, low_open=True, high_open=True),
+    "advantage_learning": number_in(0.0, 1.0, high_open=True),
+    "advantage_learning_ramp": number_in(0.0, 1.0, low_open=True),
+    "comm_learning": one_of("dial", "none"),
+    "comm_noise": number_in(0.0, math.inf, high_open=True),
+    "eval_interval": int_in(1),
+    "eval_episodes": int_in(1),
+    "keep_best": boolean,
+    "select_by": one_of(*SELECT_BY),
+    "final_eval_episodes": int_in(1),
+    "save_freq": int_in(0),
+    "output_dir": folder,
+    "workers": int_in(1),
+    "overwrite": boolean,
+    "target_potential": number_in(0.0, math.inf, high_open=True),
+    "potential_credit": one_of("agent", "team"),
+}
+
+
+def validated(cfg: TrainConfig, rules: dict[str, Check] = RULES) -> TrainConfig:
+    """``cfg`` if every field keeps its rule in ``rules`` (a subclass passes its own, e.g.
+    ``studies.pool_training.POOL_RULES``); otherwise :class:`SettingError` listing every
+    invalid field with its allowed range. A field without a rule is a TypeError."""
+    problems = []
+    for spec in dataclasses.fields(cfg):
+        if spec.name not in rules:
+            raise TypeError(f"no rule for the setting {spec.name} of {type(cfg).__name__}")
+        value = getattr(cfg, spec.name)
+        problem = rules[spec.name](value)
+        if problem:
+            problems.append((spec.name, problem, value))
+    problems += cross_field_problems(cfg, invalid={name for name, _, _ in problems})
+    if problems:
+        raise SettingError(*problems[0], *problems[1:])
+    return cfg
+
+
+def cross_field_problems(cfg: TrainConfig, invalid: Collection[str] = ()) -> list[Problem]:
+    """Settings that are each valid but break training together, as (name, problem, value);
+    relations that read a field named in ``invalid`` are not checked."""
+    problems = []
+
+    def readable(*names: str) -> bool:
+        return not set(names).intersection(invalid)
+
+    if readable("epsilon_start", "epsilon_end") and cfg.epsilon_end > cfg.epsilon_start:
+        problem = f"must not exceed epsilon_start {cfg.epsilon_start}"
+        problems.append(("epsilon_end", problem, cfg.epsilon_end))
+    for name in ("buffer_size", "learning_starts"):
+        if readable(name, "batch_size") and getattr(cfg, name) < cfg.batch_size:
+            problem = f"must be at least batch_size {cfg.batch_size}"
+            problems.append((name, problem, getattr(cfg, name)))
+    if readable("grid_size", "map_seed"):
+        try:
+            generate_map(cfg.grid_shape(), cfg.map_seed)
+        except ValueError as error:
+            problem = f"gives no usable map on this grid ({error})"
+            problems.append(("map_seed", problem, cfg.map_seed))
+    return problems
+
+
+def check_setting(name: str, value: Any) -> None:
+    """Raise :class:`SettingError` if ``value`` breaks TrainConfig field ``name``'s rule
+    (checked alone, e.g. for a study's flag that is turned into other fields)."""
+    check_value(name, value, RULES[name])

@@ -26,6 +26,7 @@ from grid_maps import NUM_ACTIONS
 from models import observation_mask, use_reproducible_matmul
 from replay_buffer import ReplayBuffer
 from rollout import EVAL_SEED, Rollout
+from settings import validated
 from train_config import TrainConfig
 from trainer import EVAL_EPSILON, DQNTrainer, step_fields
 
@@ -55,7 +56,7 @@ def config_from(args: Any) -> TrainConfig:
         settings["mode"] = "full"
     settings.setdefault("output_dir", "results")  # like the skeleton
     settings.pop("grid_size", None)  # the trainer trains on env's grid
-    return TrainConfig(**settings).validate()
+    return validated(TrainConfig(**settings))
 
 
 class MultiAgentTrainer(DQNTrainer):

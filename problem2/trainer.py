@@ -77,9 +77,9 @@ class DQNTrainer:
     Args:
         env: what training reads of the environment: its ``grid`` (H, W), ``obs_window`` and
             ``max_steps`` (a ``MultiAgentEnv`` or a one-map ``VectorMultiAgentEnv``).
-        cfg: the run's settings, already validated; ``cfg.mode`` one of independent, comm,
-            distance, full; outputs go to ``<cfg.output_dir>/agent_models`` and
-            ``/training_logs``.
+        cfg: the run's settings, checked (``settings.validated``); ``cfg.mode`` one of
+            independent, comm, distance, full; outputs go to ``<cfg.output_dir>/agent_models``
+            and ``/training_logs``.
     """
 
     def __init__(self, env: Any, cfg: TrainConfig) -> None:

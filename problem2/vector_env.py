@@ -8,8 +8,17 @@ experience from 64 copies, the evaluator runs 1000 test episodes together);
 from __future__ import annotations
 
 import numpy as np
-from grid_maps import ACTION_DELTAS, FREE, OFF_GRID, TARGET, check_step, choose_map
-from settings import check_seed, is_integer, positive_int
+from grid_maps import (
+    ACTION_DELTAS,
+    FREE,
+    OFF_GRID,
+    TARGET,
+    check_seed,
+    check_step,
+    choose_map,
+    is_integer,
+    positive_int,
+)
 
 BOTH_ON_TARGET_REWARD = 10.0
 ARRIVAL_REWARD = 2.0

@@ -22,7 +22,8 @@ import numpy as np
 import torch
 from grid_maps import generate_map
 from rollout import EVAL_EPSILON, VALIDATION_SEED, select_best
-from train_config import DEFAULT_OUTPUT_DIR, SettingError, TrainConfig
+from settings import SettingError, validated
+from train_config import DEFAULT_OUTPUT_DIR, TrainConfig
 from trainer import LAST_WEIGHTS, DQNTrainer
 from vector_env import VectorMultiAgentEnv
 
@@ -191,7 +192,7 @@ def run_experiments(
     On KeyboardInterrupt the staging folder becomes ``<output_dir>/interrupted/`` (its CSV
     rows are what was measured) and the error is re-raised; on any other error it is
     deleted, with the output folder itself if this batch created it."""
-    cfg.validate()
+    validated(cfg)
     check_output_dir(cfg)
     root = output_root(cfg)
     # The outermost folder that this batch creates (None: root exists).

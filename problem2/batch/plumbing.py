@@ -27,7 +27,7 @@ from typing import Any, TextIO
 
 import numpy as np
 from grid_maps import check_grid
-from settings import SettingError
+from settings import SettingError, validated
 from train_config import TrainConfig
 
 
@@ -331,7 +331,7 @@ def parse_config(
     values = vars((parser or build_parser()).parse_args(argv))
     if isinstance(values.get("mode"), list):
         values["mode"] = ",".join(values["mode"])
-    return TrainConfig(**values).validate()
+    return validated(TrainConfig(**values))
 
 
 def parse_config_or_exit(

@@ -62,9 +62,10 @@ from matplotlib.figure import Figure
 from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED
-from train_config import MODES, SettingError, available_cores, check_value, int_in
+from settings import SettingError, check_value, int_in, validated
+from train_config import MODES, available_cores
 
-from studies.pool_training import PoolConfig, PoolTrainer
+from studies.pool_training import POOL_RULES, PoolConfig, PoolTrainer
 from studies.staging import (
     best_env_steps,
     best_selection,
@@ -388,7 +389,7 @@ def parse_args(argv: list[str] | None) -> tuple[PoolConfig, argparse.Namespace]:
         # Flags turned into other fields are checked by their field's rule alone.
         check_field("num_seeds", args.num_seeds)  # the seeds 0..num_seeds-1
         check_field("output_dir", str(args.output_dir))  # the study's own folder
-        cfg = PoolConfig(**settings).validate()
+        cfg = validated(PoolConfig(**settings), POOL_RULES)
     except SettingError as error:
         parser.error(usage(error))
     return cfg, args

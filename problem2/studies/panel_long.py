@@ -62,8 +62,8 @@ def run_check(panel_dir: Path, num_episodes: int, total_steps: int) -> dict[str,
         total_steps=total_steps,
         overwrite=True,
         output_dir=str(panel_dir / "long" / f"map{map_seed}"),
-    ).validate()
-    run_experiments(cfg)
+    )
+    run_experiments(cfg)  # checks every setting first
     batch = Path(cfg.output_dir)
     experiment = read_experiment(f"panel/long/map{map_seed}", batch / "agent_models")
     outcome = evaluate_experiment(experiment, num_episodes, EVAL_EPSILON)

@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 from analysis.map_sets import MAX_POOL_SIZE, training_maps, validation_maps
 from grid_maps import FREE, OBSTACLE, OFF_GRID, TARGET, check_grid, reaches_target
-from settings import boolean, int_in, number_in, setting
-from train_config import TrainConfig
+from settings import RULES, boolean, int_in, number_in
+from train_config import TrainConfig, setting
 from trainer import DQNTrainer
 from vector_env import VectorMultiAgentEnv
 
@@ -61,30 +61,34 @@ class PoolConfig(TrainConfig):
         "0: train on the --map_seed map; N > 0: on a pool of N generated maps "
         "(analysis/map_sets.py), a new one drawn at each episode start, evaluated on other "
         "generated maps",
-        int_in(0, MAX_POOL_SIZE),
     )
     validation_maps: int = setting(
         200,
         "with --map_pool: generated validation maps of the periodic evaluations (1 or more)",
-        int_in(1, MAX_POOL_SIZE),
     )
     share_weights: bool = setting(
         False,
         "parameter sharing: both agents use one set of weights (same start, summed gradient), "
         "a departure from the assignment's independent learners",
-        boolean,
     )
     coverage_bonus: float = setting(
         0.0,
         "reward shaping for learning only (>= 0): added per grid cell that enters either "
         "agent's 3x3 view for the first time in the episode",
-        number_in(0.0, math.inf, high_open=True),
     )
     on_target_bonus: float = setting(
         0.0,
         "reward shaping for learning only (>= 0): added per agent standing on the target",
-        number_in(0.0, math.inf, high_open=True),
     )
+
+
+POOL_RULES = RULES | {  # the rules of PoolConfig's own fields (settings.validated)
+    "map_pool": int_in(0, MAX_POOL_SIZE),
+    "validation_maps": int_in(1, MAX_POOL_SIZE),
+    "share_weights": boolean,
+    "coverage_bonus": number_in(0.0, math.inf, high_open=True),
+    "on_target_bonus": number_in(0.0, math.inf, high_open=True),
+}
 
 
 class PooledVectorEnv(VectorMultiAgentEnv):

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from batch.plumbing import remove_stale_temporaries, write_json_atomic
-from train_config import check_setting
+from settings import check_setting
 from trainer import DQNTrainer
 
 

@@ -13,8 +13,9 @@ from analysis.held_out import held_out_maps
 from analysis.map_sets import HELD_OUT_MAP_SEEDS, training_maps, validation_maps
 from grid_maps import DEFAULT_MAP_SEED, generate_map
 from multi_agent_env import MultiAgentEnv
+from settings import validated
 from studies import map_pool_study
-from studies.pool_training import PoolConfig, PooledVectorEnv, PoolTrainer
+from studies.pool_training import POOL_RULES, PoolConfig, PooledVectorEnv, PoolTrainer
 from vector_env import VectorMultiAgentEnv
 
 MAPS = np.stack([generate_map((10, 10), seed) for seed in (0, 1, 2, 3)])
@@ -124,19 +125,22 @@ def test_pools_are_deterministic_distinct_and_disjoint_from_the_test_maps() -> N
 
 # ---------------------------------------------------------------------- trainer
 def pool_trainer(tmp_path: Path, **settings) -> PoolTrainer:
-    cfg = PoolConfig(
-        mode="full",
-        seed=3,
-        total_steps=10**9,
-        num_envs=16,
-        batch_size=32,
-        learning_starts=32,
-        buffer_size=4096,
-        map_pool=50,
-        validation_maps=10,
-        output_dir=str(tmp_path),
-        **{"target_potential": 0.0} | settings,  # the study's recipe: no arrival term
-    ).validate()
+    cfg = validated(
+        PoolConfig(
+            mode="full",
+            seed=3,
+            total_steps=10**9,
+            num_envs=16,
+            batch_size=32,
+            learning_starts=32,
+            buffer_size=4096,
+            map_pool=50,
+            validation_maps=10,
+            output_dir=str(tmp_path),
+            **{"target_potential": 0.0} | settings,  # the study's recipe: no arrival term
+        ),
+        POOL_RULES,
+    )
     return PoolTrainer(MultiAgentEnv(seed=641), cfg)
 
 
@@ -218,7 +222,7 @@ def tiny_study_config(**settings) -> PoolConfig:
         workers=1,
         max_steps=12,
     )
-    return PoolConfig(**map_pool_study.RECIPE | tiny | settings).validate()
+    return validated(PoolConfig(**map_pool_study.RECIPE | tiny | settings), POOL_RULES)
 
 
 def test_tiny_study_end_to_end_and_reproducible(tmp_path: Path) -> None:

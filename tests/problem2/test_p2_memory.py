@@ -16,6 +16,7 @@ from grid_maps import TARGET
 from models import MESSAGE_INDEX
 from multi_agent_env import MultiAgentEnv
 from rollout import run_episodes
+from settings import validated
 from studies.memory.agents import (
     MEMORY_MODES,
     RecurrentQNetwork,
@@ -25,7 +26,7 @@ from studies.memory.agents import (
 )
 from studies.memory.held_out_tests import memory_cic, memory_states
 from studies.memory.learner import CURRICULUM_END, CurriculumEnv, Levers, RecurrentTrainer
-from studies.pool_training import PoolConfig, PooledVectorEnv
+from studies.pool_training import POOL_RULES, PoolConfig, PooledVectorEnv
 from vector_env import VectorMultiAgentEnv
 
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.\\w+` is deprecated:DeprecationWarning")
@@ -96,26 +97,29 @@ def test_memory_policy_resets_the_state_at_every_episode_start() -> None:
 
 
 def small_trainer(tmp_path: Path, mode: str, **settings: object) -> RecurrentTrainer:
-    cfg = PoolConfig(
-        **{
-            "total_steps": 2_000,
-            "num_envs": 8,
-            "batch_size": 64,
-            "learning_starts": 400,
-            "eval_interval": 1_000,
-            "eval_episodes": 8,
-            "hidden_dim": 16,
-            "n_step": 3,
-            "gamma": 0.9,
-            "map_pool": 20,
-            "validation_maps": 4,
-            "share_weights": True,
-            "potential_credit": "team",
-            "output_dir": str(tmp_path),
-            "seed": 5,
-        }
-        | settings,
-    ).validate()
+    cfg = validated(
+        PoolConfig(
+            **{
+                "total_steps": 2_000,
+                "num_envs": 8,
+                "batch_size": 64,
+                "learning_starts": 400,
+                "eval_interval": 1_000,
+                "eval_episodes": 8,
+                "hidden_dim": 16,
+                "n_step": 3,
+                "gamma": 0.9,
+                "map_pool": 20,
+                "validation_maps": 4,
+                "share_weights": True,
+                "potential_credit": "team",
+                "output_dir": str(tmp_path),
+                "seed": 5,
+            }
+            | settings,
+        ),
+        POOL_RULES,
+    )
     return RecurrentTrainer(MultiAgentEnv(max_steps=12), cfg, mode)
 
 

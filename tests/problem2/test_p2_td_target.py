@@ -10,6 +10,7 @@ import pytest
 import torch
 from multi_agent_env import MultiAgentEnv
 from replay import TransitionBatch
+from settings import validated
 from torch import nn
 from train_config import TrainConfig
 from trainer import DQNTrainer
@@ -71,15 +72,17 @@ def hand_batch() -> TransitionBatch:
 
 
 def trainer_with_tables(tmp_path: Path, advantage_learning: float) -> DQNTrainer:
-    cfg = TrainConfig(
-        mode="independent",
-        gamma=GAMMA,
-        n_step=3,
-        target_potential=0.0,
-        advantage_learning=advantage_learning,
-        advantage_learning_ramp=1.0,
-        output_dir=str(tmp_path),
-    ).validate()
+    cfg = validated(
+        TrainConfig(
+            mode="independent",
+            gamma=GAMMA,
+            n_step=3,
+            target_potential=0.0,
+            advantage_learning=advantage_learning,
+            advantage_learning_ramp=1.0,
+            output_dir=str(tmp_path),
+        )
+    )
     trainer = DQNTrainer(MultiAgentEnv(seed=641), cfg)
     trainer.online, trainer.target = Table(ONLINE), Table(TARGET)
     trainer.env_steps = cfg.total_steps  # the end of the run: α at its full value

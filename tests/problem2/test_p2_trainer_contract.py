@@ -14,6 +14,7 @@ from analysis.runs import load_policy
 from models import export_policy, observation_mask
 from multi_agent_env import MultiAgentEnv
 from rollout import VALIDATION_SEED, select_best
+from settings import validated
 from studies.staging import best_env_steps, best_selection
 from train_config import TrainConfig
 
@@ -89,7 +90,7 @@ def test_linear_epsilon_over_epsilon_fraction(tmp_path: Path) -> None:
 
 def test_epsilon_decay_outside_its_range_is_refused_with_its_meaning() -> None:
     with pytest.raises(ValueError, match="multiplicative factor per episode"):
-        TrainConfig(epsilon_decay=1.5).validate()
+        validated(TrainConfig(epsilon_decay=1.5))
 
 
 def push_by_hand(trainer: train.MultiAgentTrainer, count: int, rng: np.random.Generator) -> None:
@@ -297,4 +298,4 @@ def test_training_ends_with_the_checkpoint_that_select_by_picks_from_the_log(
 
 def test_select_by_is_refused_outside_its_choices() -> None:
     with pytest.raises(ValueError, match="select_by"):
-        TrainConfig(select_by="luck").validate()
+        validated(TrainConfig(select_by="luck"))

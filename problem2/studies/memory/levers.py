@@ -28,11 +28,12 @@ from analysis.stats import seed_statistics
 from batch.plumbing import ProgressLine, make_console_safe, run_jobs, usage, write_json_atomic
 from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
-from train_config import SettingError, available_cores
+from settings import SettingError, validated
+from train_config import available_cores
 
 from studies.memory.learner import Levers, RecurrentTrainer
 from studies.memory.study import RECIPE, RESULTS
-from studies.pool_training import PoolConfig
+from studies.pool_training import POOL_RULES, PoolConfig
 from studies.staging import best_env_steps, best_selection, check_field, staged_output, train_into
 
 OUTPUT_DIR = RESULTS / "memory_levers"
@@ -120,7 +121,7 @@ def main(argv: list[str] | None = None) -> dict:
             f"--setting: unknown {', '.join(unknown)}; use all or some of {', '.join(SETTINGS)}"
         )
     try:
-        cfg = PoolConfig(**RECIPE | {"seeds": [], "workers": args.workers}).validate()
+        cfg = validated(PoolConfig(**RECIPE | {"seeds": [], "workers": args.workers}), POOL_RULES)
         check_field("workers", args.workers)
     except SettingError as error:
         parser.error(usage(error))

@@ -40,7 +40,8 @@ from matplotlib.figure import Figure
 from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED
-from train_config import SettingError, available_cores, check_value, int_in
+from settings import SettingError, check_value, int_in, validated
+from train_config import available_cores
 
 from studies import map_pool_study
 from studies.memory.agents import MEMORY_MODES
@@ -51,7 +52,7 @@ from studies.memory.held_out_tests import (
     held_out_results,
 )
 from studies.memory.learner import TRANSITIONS_PER_EPISODE, RecurrentTrainer
-from studies.pool_training import PoolConfig
+from studies.pool_training import POOL_RULES, PoolConfig
 from studies.staging import (
     best_env_steps,
     best_selection,
@@ -315,7 +316,7 @@ def parse_args(argv: list[str] | None) -> tuple[PoolConfig, argparse.Namespace]:
         check_value("episodes_per_map", args.episodes_per_map, int_in(1, 100_000))
         check_field("num_seeds", args.num_seeds)
         check_field("output_dir", str(args.output_dir))
-        cfg = PoolConfig(**settings).validate()
+        cfg = validated(PoolConfig(**settings), POOL_RULES)
     except SettingError as error:
         parser.error(usage(error))
     args.modes, args.seeds = modes, list(range(args.num_seeds))

@@ -35,13 +35,14 @@ from batch.plumbing import ProgressLine, make_console_safe, run_jobs, write_json
 from matplotlib.figure import Figure
 from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
+from settings import validated
 from train_config import available_cores
 
 from studies import map_pool_study
 from studies.memory import study as gru_study
 from studies.memory.held_out_tests import CONDITIONS, beacon_homing, held_out_results
 from studies.one_step.agents import OneStepMemoryEnv, OneStepMemoryTrainer
-from studies.pool_training import PoolConfig, PooledVectorEnv, PoolTrainer
+from studies.pool_training import POOL_RULES, PoolConfig, PooledVectorEnv, PoolTrainer
 from studies.staging import best_env_steps, best_selection, staged_output, train_into, write_timing
 
 RESULTS = gru_study.RESULTS
@@ -81,7 +82,9 @@ class PooledOneStepTrainer(OneStepMemoryTrainer, PoolTrainer):
 
 def recipe(**changes: Any) -> PoolConfig:
     """The map-pool study's recipe for one run, with ``changes``."""
-    return PoolConfig(**map_pool_study.RECIPE | {"seeds": [], "workers": 1} | changes).validate()
+    return validated(
+        PoolConfig(**map_pool_study.RECIPE | {"seeds": [], "workers": 1} | changes), POOL_RULES
+    )
 
 
 def train(cfg: PoolConfig, staging: Path, progress: Any, start: float) -> PooledOneStepTrainer:
