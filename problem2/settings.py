@@ -1,9 +1,11 @@
-"""The rules of Problem 2's settings, checked before any work starts: ``RULES`` gives each
-field of ``train_config.TrainConfig`` its allowed range; a check maps a value to None (allowed)
-or to the problem, phrased with the allowed range ("must be an integer >= 1");
-:func:`validated` raises :class:`SettingError` with every problem found, each naming its field
-(the flag ``--name``). The command line and the batch call it; the trainer takes a checked
-config."""
+"""The settings of a batch of training runs and the rule of every setting, checked before any
+work starts. :class:`BatchConfig` is ``train_config.TrainConfig`` (what one run reads) with
+the batch's modes, seeds, map and processes: ``python train.py`` takes one, a flag per field.
+``RULES`` gives each field its allowed range; a check maps a value to None (allowed) or to
+the problem, phrased with the allowed range ("must be an integer >= 1"); :func:`validated`
+raises :class:`SettingError` with every problem found, each naming its field (the flag
+``--name``). The command line, the batch and the studies call it; the trainer takes a
+checked config."""
 
 from __future__ import annotations
 
@@ -16,7 +18,12 @@ from typing import Any
 
 from grid_maps import generate_map, is_integer
 from rollout import SELECT_BY
-from train_config import MAX_GRID_SIDE, MAX_SEED, TRAINABLE_MODES, TrainConfig
+from train_config import TRAINABLE_MODES, TrainConfig, setting
+
+MODES = ("independent", "comm", "full")  # the assignment's ablation: --mode all
+MAX_SEED = 2**32 - 1
+MAX_GRID_SIDE = 100
+RUN_ONLY_FIELDS = ("output_dir", "workers", "overwrite")  # where and how, not what
 
 Check = Callable[[Any], str | None]
 Problem = tuple[str, str, Any]  # (field name, what is wrong, the value)
@@ -121,6 +128,83 @@ def one_or_two_ints(low: int, high: int) -> Check:
     return check
 
 
+def available_cores() -> int:
+    """Cores this process may run on (the affinity mask where the OS has one)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
+
+
+@dataclasses.dataclass
+class BatchConfig(TrainConfig):
+    """A batch of runs: every (mode, seed) of ``run_modes()`` x ``run_seeds()`` on one map,
+    trained in ``workers`` processes; each run reads the :class:`TrainConfig` fields."""
+
+    num_seeds: int = setting(10, "number of training seeds per mode (1 or more)")
+    seeds: list[int] = setting(
+        [],
+        "explicit distinct training seeds (override --seed and --num_seeds)",
+        items=(int, "SEED"),
+    )
+    map_seed: int = setting(
+        641,
+        "seed of the map (obstacles and target) every run trains on",
+    )
+    grid_size: int | list[int] = setting(
+        10,
+        "grid side (--grid_size 10) or rows and columns (--grid_size 10 10)",
+        items=(int, "N"),
+    )
+    max_steps: int = setting(
+        50,
+        "episode time limit (a cut-off: the TD target bootstraps through it)",
+    )
+    final_eval_episodes: int = setting(
+        1000,
+        "validation episodes of the final evaluation that picks the best seed per mode",
+    )
+    save_freq: int = setting(
+        0,
+        "environment steps between intermediate model saves (0: at the end only)",
+    )
+    workers: int = setting(
+        available_cores,
+        "parallel training processes (default: the available cores)",
+    )
+    overwrite: bool = setting(
+        False,
+        "replace a batch with other settings in --output_dir",
+    )
+
+    def __post_init__(self) -> None:
+        # --grid_size 10 and --grid_size 10 10 (the skeleton's list) mean the same grid.
+        if isinstance(self.grid_size, (list, tuple)):
+            sides = list(self.grid_size)
+            if len(sides) == 1 or (len(sides) == 2 and sides[0] == sides[1]):
+                self.grid_size = sides[0]
+            else:
+                self.grid_size = sides
+
+    def grid_shape(self) -> tuple[int, int]:
+        """(rows, cols) of the grid."""
+        if isinstance(self.grid_size, list):
+            return int(self.grid_size[0]), int(self.grid_size[1])
+        return int(self.grid_size), int(self.grid_size)
+
+    def run_seeds(self) -> list[int]:
+        return list(self.seeds) if self.seeds else [self.seed + i for i in range(self.num_seeds)]
+
+    def run_modes(self) -> list[str]:
+        return list(MODES) if self.mode == "all" else self.mode.split(",")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def hyperparameters(self) -> dict[str, Any]:
+        """Every field that shapes the results (not where they go or how many processes)."""
+        return {k: v for k, v in self.to_dict().items() if k not in RUN_ONLY_FIELDS}
+
+
 def decay_factor(value: Any) -> str | None:
     """0 (the linear schedule) or the skeleton's multiplicative factor in (0, 1)."""
     zero = value == 0 and not isinstance(value, bool)
@@ -131,14 +215,9 @@ def decay_factor(value: Any) -> str | None:
     )
 
 
-RULES: dict[str, Check] = {  # every field of TrainConfig, in its order
+RULES: dict[str, Check] = {  # every field of BatchConfig, in its order
     "mode": mode_list(TRAINABLE_MODES),
     "seed": int_in(0, MAX_SEED),
-    "num_seeds": int_in(1),
-    "seeds": distinct_ints(0, MAX_SEED),
-    "map_seed": int_in(0, MAX_SEED),
-    "grid_size": one_or_two_ints(3, MAX_GRID_SIDE),
-    "max_steps": int_in(1),
     "reward_mode": one_of("goal", "per_step", "arrival"),
     "total_steps": int_in(1),
     "num_episodes": int_in(0),
@@ -167,13 +246,18 @@ RULES: dict[str, Check] = {  # every field of TrainConfig, in its order
     "eval_episodes": int_in(1),
     "keep_best": boolean,
     "select_by": one_of(*SELECT_BY),
-    "final_eval_episodes": int_in(1),
-    "save_freq": int_in(0),
     "output_dir": folder,
-    "workers": int_in(1),
-    "overwrite": boolean,
     "target_potential": number_in(0.0, math.inf, high_open=True),
     "potential_credit": one_of("agent", "team"),
+    "num_seeds": int_in(1),
+    "seeds": distinct_ints(0, MAX_SEED),
+    "map_seed": int_in(0, MAX_SEED),
+    "grid_size": one_or_two_ints(3, MAX_GRID_SIDE),
+    "max_steps": int_in(1),
+    "final_eval_episodes": int_in(1),
+    "save_freq": int_in(0),
+    "workers": int_in(1),
+    "overwrite": boolean,
 }
 
 
@@ -210,7 +294,7 @@ def cross_field_problems(cfg: TrainConfig, invalid: Collection[str] = ()) -> lis
         if readable(name, "batch_size") and getattr(cfg, name) < cfg.batch_size:
             problem = f"must be at least batch_size {cfg.batch_size}"
             problems.append((name, problem, getattr(cfg, name)))
-    if readable("grid_size", "map_seed"):
+    if isinstance(cfg, BatchConfig) and readable("grid_size", "map_seed"):
         try:
             generate_map(cfg.grid_shape(), cfg.map_seed)
         except ValueError as error:
@@ -220,6 +304,6 @@ def cross_field_problems(cfg: TrainConfig, invalid: Collection[str] = ()) -> lis
 
 
 def check_setting(name: str, value: Any) -> None:
-    """Raise :class:`SettingError` if ``value`` breaks TrainConfig field ``name``'s rule
+    """Raise :class:`SettingError` if ``value`` breaks BatchConfig field ``name``'s rule
     (checked alone, e.g. for a study's flag that is turned into other fields)."""
     check_value(name, value, RULES[name])

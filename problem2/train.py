@@ -47,7 +47,7 @@ def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndar
 def config_from(args: Any) -> TrainConfig:
     """A TrainConfig as given, or one built and validated from any namespace, e.g. the course
     skeleton's (``mode`` missing or ``all`` means ``full``; output under ``./results``;
-    unknown attributes and ``grid_size`` ignored: the map comes from the environment)."""
+    other attributes ignored, ``grid_size`` among them: the map comes from the environment)."""
     if isinstance(args, TrainConfig):
         return args
     known = {f.name for f in fields(TrainConfig)}
@@ -55,7 +55,6 @@ def config_from(args: Any) -> TrainConfig:
     if settings.get("mode", "all") == "all":
         settings["mode"] = "full"
     settings.setdefault("output_dir", "results")  # like the skeleton
-    settings.pop("grid_size", None)  # the trainer trains on env's grid
     return validated(TrainConfig(**settings))
 
 

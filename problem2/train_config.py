@@ -1,25 +1,20 @@
 """Hyperparameters of Problem 2's training, in one dataclass: each field is declared once
-with its default and its help; ``batch/plumbing.py`` builds one flag per field
-(``--num_episodes`` or ``--num-episodes``), and ``settings.py`` checks every value against
-the field's rule (``settings.RULES``) before any work starts. The trainer takes a checked
-config. Study extensions add fields in a subclass (``studies/pool_training.py``).
+with its default and its help. ``TrainConfig`` holds what one training run reads;
+``settings.BatchConfig`` adds the batch (modes, seeds, map, workers), and ``settings.py`` checks
+every value against its rule before any work starts. ``batch/plumbing.py`` builds one flag
+per field (``--num_episodes`` or ``--num-episodes``). Study extensions add fields in a
+subclass (``studies/pool_training.py``).
 """
 
 from __future__ import annotations
 
-import dataclasses
-import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-MODES = ("independent", "comm", "full")  # the assignment's ablation: --mode all
 TRAINABLE_MODES = ("independent", "comm", "distance", "full")  # distance: the map panel's 2 x 2
 DEFAULT_OUTPUT_DIR = Path(__file__).resolve().parent / "results"
-MAX_SEED = 2**32 - 1
-MAX_GRID_SIDE = 100
-RUN_ONLY_FIELDS = ("output_dir", "workers", "overwrite")  # where and how, not what
 
 
 def setting(default: Any, help: str, items: tuple[Callable[[str], Any], str] | None = None) -> Any:
@@ -34,16 +29,10 @@ def setting(default: Any, help: str, items: tuple[Callable[[str], Any], str] | N
     return field(default=default, metadata=metadata)
 
 
-def available_cores() -> int:
-    """Cores this process may run on (the affinity mask where the OS has one)."""
-    if hasattr(os, "sched_getaffinity"):
-        return max(1, len(os.sched_getaffinity(0)))
-    return max(1, os.cpu_count() or 1)
-
-
 @dataclass
 class TrainConfig:
-    """Everything that defines a training run (one mode, one seed) or a batch of them."""
+    """What one training run reads (one mode, one seed; ``mode`` and ``seed`` also name the
+    first of a batch's, ``settings.BatchConfig``)."""
 
     mode: str = setting(
         "all",
@@ -54,25 +43,6 @@ class TrainConfig:
     seed: int = setting(
         641,
         "first training seed (seed, seed + 1, ... unless --seeds is given)",
-    )
-    num_seeds: int = setting(10, "number of training seeds per mode (1 or more)")
-    seeds: list[int] = setting(
-        [],
-        "explicit distinct training seeds (override --seed and --num_seeds)",
-        items=(int, "SEED"),
-    )
-    map_seed: int = setting(
-        641,
-        "seed of the map (obstacles and target) every run trains on",
-    )
-    grid_size: int | list[int] = setting(
-        10,
-        "grid side (--grid_size 10) or rows and columns (--grid_size 10 10)",
-        items=(int, "N"),
-    )
-    max_steps: int = setting(
-        50,
-        "episode time limit (a cut-off: the TD target bootstraps through it)",
     )
     reward_mode: str = setting(
         "goal",
@@ -166,26 +136,10 @@ class TrainConfig:
         "what picks checkpoints and the best seed (greedy and epsilon = 0.05 means): steps "
         "(fewest steps within one point of the best success), success or return",
     )
-    final_eval_episodes: int = setting(
-        1000,
-        "validation episodes of the final evaluation that picks the best seed per mode",
-    )
-    save_freq: int = setting(
-        0,
-        "environment steps between intermediate model saves (0: at the end only)",
-    )
     output_dir: str = setting(
         str(DEFAULT_OUTPUT_DIR),
         "folder for agent_models/ and training_logs/, relative to the current folder "
         "(default: problem2/results)",
-    )
-    workers: int = setting(
-        available_cores,
-        "parallel training processes (default: the available cores)",
-    )
-    overwrite: bool = setting(
-        False,
-        "replace a batch with other settings in --output_dir",
     )
 
     # ------------------------------------------------ the reward only learning sees
@@ -199,31 +153,3 @@ class TrainConfig:
         "whose arrivals the shaping pays each agent for: agent (its own; Devlin and Kudenko "
         "2011) or team (both agents')",
     )
-
-    def __post_init__(self) -> None:
-        # --grid_size 10 and --grid_size 10 10 (the skeleton's list) mean the same grid.
-        if isinstance(self.grid_size, (list, tuple)):
-            sides = list(self.grid_size)
-            if len(sides) == 1 or (len(sides) == 2 and sides[0] == sides[1]):
-                self.grid_size = sides[0]
-            else:
-                self.grid_size = sides
-
-    def grid_shape(self) -> tuple[int, int]:
-        """(rows, cols) of the grid."""
-        if isinstance(self.grid_size, list):
-            return int(self.grid_size[0]), int(self.grid_size[1])
-        return int(self.grid_size), int(self.grid_size)
-
-    def run_seeds(self) -> list[int]:
-        return list(self.seeds) if self.seeds else [self.seed + i for i in range(self.num_seeds)]
-
-    def run_modes(self) -> list[str]:
-        return list(MODES) if self.mode == "all" else self.mode.split(",")
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    def hyperparameters(self) -> dict[str, Any]:
-        """Every field that shapes the results (not where they go or how many processes)."""
-        return {k: v for k, v in self.to_dict().items() if k not in RUN_ONLY_FIELDS}

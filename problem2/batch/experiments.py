@@ -22,8 +22,8 @@ import numpy as np
 import torch
 from grid_maps import generate_map
 from rollout import EVAL_EPSILON, VALIDATION_SEED, select_best
-from settings import SettingError, validated
-from train_config import DEFAULT_OUTPUT_DIR, TrainConfig
+from settings import BatchConfig, SettingError, validated
+from train_config import DEFAULT_OUTPUT_DIR
 from trainer import LAST_WEIGHTS, DQNTrainer
 from vector_env import VectorMultiAgentEnv
 
@@ -52,13 +52,13 @@ def run_name(mode: str, seed: int) -> str:
     return f"{mode}_seed{seed}"
 
 
-def output_root(cfg: TrainConfig) -> Path:
+def output_root(cfg: BatchConfig) -> Path:
     """``cfg.output_dir`` as an absolute path (a relative one is relative to the current folder)."""
     return Path(cfg.output_dir).resolve()
 
 
 # ------------------------------------------------------------------ which folder may be used
-def batch_identity(cfg: TrainConfig) -> dict[str, Any]:
+def batch_identity(cfg: BatchConfig) -> dict[str, Any]:
     """What a batch is, as the manifest records it (compared to decide replace vs refuse)."""
     return {
         "modes": cfg.run_modes(),
@@ -90,7 +90,7 @@ def holds_results(root: Path) -> bool:
     )
 
 
-def check_output_dir(cfg: TrainConfig) -> None:
+def check_output_dir(cfg: BatchConfig) -> None:
     """Refuse (SettingError on output_dir) before any work when this batch would replace a
     batch with other settings, or put non-default settings into the default folder,
     unless ``cfg.overwrite``. A batch with identical settings is replaced."""
@@ -114,7 +114,7 @@ def check_output_dir(cfg: TrainConfig) -> None:
                 cfg.output_dir,
             )
     is_default_folder = root == DEFAULT_OUTPUT_DIR.resolve()
-    default_differences = identity_differences(batch_identity(TrainConfig()), new)
+    default_differences = identity_differences(batch_identity(BatchConfig()), new)
     if is_default_folder and default_differences:
         raise SettingError(
             "output_dir",
@@ -137,7 +137,7 @@ def read_csv(path: Path) -> list[dict[str, float]]:
 
 
 def train_one(
-    cfg: TrainConfig,
+    cfg: BatchConfig,
     mode: str,
     seed: int,
     models_dir: Path,
@@ -149,7 +149,7 @@ def train_one(
     (greedy and ε = 0.05 on ``cfg.final_eval_episodes`` validation episodes: what picks the
     best seed of a mode) and return it. ``progress.put((name, row, seconds))`` gets each row."""
     torch.set_num_threads(1)
-    run_cfg = TrainConfig(
+    run_cfg = BatchConfig(
         **{**cfg.to_dict(), "mode": mode, "seed": seed, "seeds": [], "workers": 1}
         | {"output_dir": str(models_dir.parent)}
     )
@@ -183,7 +183,7 @@ def train_one(
 
 # ------------------------------------------------------------------------------ the batch
 def run_experiments(
-    cfg: TrainConfig, trainer_class: type[DQNTrainer] = DQNTrainer
+    cfg: BatchConfig, trainer_class: type[DQNTrainer] = DQNTrainer
 ) -> list[dict[str, Any]]:
     """Train every (mode, seed) of ``cfg`` in ``cfg.workers`` processes into a staging
     folder, then install it into ``cfg.output_dir`` (whole or not at all). Each run is a
@@ -229,7 +229,7 @@ def run_experiments(
 
 
 def write_batch_records(
-    cfg: TrainConfig, finals: list[dict[str, Any]], models_dir: Path, logs_dir: Path
+    cfg: BatchConfig, finals: list[dict[str, Any]], models_dir: Path, logs_dir: Path
 ) -> None:
     """After every run: timing, the best pair of each mode, the curves and (last) the manifest."""
     write_json_atomic(
@@ -253,7 +253,7 @@ SELECTION_MEASURES = ("success_rate", "mean_steps_to_success", "mean_return")
 
 
 def manifest(
-    cfg: TrainConfig, finals: list[dict[str, Any]], best: dict[str, str], models_dir: Path
+    cfg: BatchConfig, finals: list[dict[str, Any]], best: dict[str, str], models_dir: Path
 ) -> dict[str, Any]:
     """The batch record that evaluate.py reads (format in the lead's CONTRACTS)."""
     runs = {}

@@ -2,7 +2,7 @@
 folder, then ``os.replace`` onto the real name, so an interrupted run never leaves a
 half-written result), stale temporaries, worker processes, the progress line, a console
 that cannot show every character, and the command line of ``python train.py``: one flag per
-:class:`~train_config.TrainConfig` field (both spellings, the field's help and default; list
+:class:`~settings.BatchConfig` field (both spellings, the field's help and default; list
 flags take ``--seeds 641 642`` or ``--seeds 641,642``), values checked before any work, and the
 flags that left the core refused with a message naming the command that now owns them."""
 
@@ -27,8 +27,7 @@ from typing import Any, TextIO
 
 import numpy as np
 from grid_maps import check_grid
-from settings import SettingError, validated
-from train_config import TrainConfig
+from settings import BatchConfig, SettingError, validated
 
 
 def make_console_safe() -> None:
@@ -287,7 +286,7 @@ def shown_value(value: Any) -> str:
     return repr(value) if isinstance(value, str) else str(value)
 
 
-def build_parser(cls: type = TrainConfig) -> argparse.ArgumentParser:
+def build_parser(cls: type = BatchConfig) -> argparse.ArgumentParser:
     """One flag per dataclass field, in both spellings, with the field's help and default."""
     parser = argparse.ArgumentParser(
         description="Train the two agents (Problem 2).",
@@ -326,18 +325,18 @@ def build_parser(cls: type = TrainConfig) -> argparse.ArgumentParser:
 
 def parse_config(
     argv: Sequence[str] | None = None, parser: argparse.ArgumentParser | None = None
-) -> TrainConfig:
+) -> BatchConfig:
     """Parse and validate; bad values raise :class:`SettingError` (a ValueError)."""
     values = vars((parser or build_parser()).parse_args(argv))
     if isinstance(values.get("mode"), list):
         values["mode"] = ",".join(values["mode"])
-    return validated(TrainConfig(**values))
+    return validated(BatchConfig(**values))
 
 
 def parse_config_or_exit(
     argv: Sequence[str] | None = None,
-    extra_check: Callable[[TrainConfig], None] | None = None,
-) -> TrainConfig:
+    extra_check: Callable[[BatchConfig], None] | None = None,
+) -> BatchConfig:
     """Parse and validate as the CLI does: bad values are an argparse usage error (exit 2)
     naming, a line each, the flag, the value and the allowed range. ``extra_check`` (e.g.
     the output folder rule) may raise SettingError too."""

@@ -62,8 +62,7 @@ from matplotlib.figure import Figure
 from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED
-from settings import SettingError, check_value, int_in, validated
-from train_config import MODES, available_cores
+from settings import MODES, SettingError, available_cores, check_value, int_in, validated
 
 from studies.pool_training import POOL_RULES, PoolConfig, PoolTrainer
 from studies.staging import (

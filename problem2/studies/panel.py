@@ -51,7 +51,7 @@ from batch.plumbing import ProgressLine, make_console_safe, run_jobs, write_json
 from grid_maps import DEFAULT_MAP_SEED, OBSTACLE, TARGET
 from models import use_reproducible_matmul
 from rollout import EVAL_EPSILON, EVAL_SEED
-from train_config import available_cores
+from settings import available_cores
 
 from studies.panel_behaviour import BEHAVIOUR, beacon_behaviour, mode_behaviour, seed_behaviour
 from studies.panel_outputs import format_table, panel_summary, plot_effects, write_csv

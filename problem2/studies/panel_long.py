@@ -26,7 +26,7 @@ from batch.experiments import read_csv, run_experiments
 from batch.plumbing import make_console_safe, write_json_atomic
 from models import use_reproducible_matmul
 from rollout import EVAL_EPSILON
-from train_config import TrainConfig
+from settings import BatchConfig
 
 from studies.panel import PANEL_DIR
 
@@ -54,8 +54,8 @@ def run_check(panel_dir: Path, num_episodes: int, total_steps: int) -> dict[str,
     panel = json.loads((panel_dir / "panel.json").read_text(encoding="utf-8"))
     map_seed = hardest_map(panel)
     seeds = panel["maps"][str(map_seed)]["seeds"][MODE]
-    default = TrainConfig()
-    cfg = TrainConfig(
+    default = BatchConfig()
+    cfg = BatchConfig(
         mode=MODE,
         map_seed=map_seed,
         seeds=list(seeds),
@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "--total_steps",
         "--total-steps",
         type=int,
-        default=BUDGET_FACTOR * TrainConfig().total_steps,
+        default=BUDGET_FACTOR * BatchConfig().total_steps,
         help="env steps per long run (default: twice the panel's)",
     )
     args = parser.parse_args(argv)

@@ -1,7 +1,7 @@
 """Training on a pool of generated maps: the extensions of the core learner that the map-pool
 and memory studies use, none of them part of the assignment's recipe.
 
-* :class:`PoolConfig`: :class:`~train_config.TrainConfig` with the pool's settings (the pool
+* :class:`PoolConfig`: :class:`~settings.BatchConfig` with the pool's settings (the pool
   size, validation maps, parameter sharing, the coverage and on-target bonuses).
 * :class:`PooledVectorEnv`: the vectorised environment whose copies draw a map from the pool
   at every episode start, and which can count the grid cells the agents have seen.
@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 from analysis.map_sets import MAX_POOL_SIZE, training_maps, validation_maps
 from grid_maps import FREE, OBSTACLE, OFF_GRID, TARGET, check_grid, reaches_target
-from settings import RULES, boolean, int_in, number_in
-from train_config import TrainConfig, setting
+from settings import RULES, BatchConfig, boolean, int_in, number_in
+from train_config import setting
 from trainer import DQNTrainer
 from vector_env import VectorMultiAgentEnv
 
@@ -53,7 +53,7 @@ def check_grid_stack(maps: np.ndarray, name: str = "maps") -> np.ndarray:
 
 
 @dataclass
-class PoolConfig(TrainConfig):
+class PoolConfig(BatchConfig):
     """The core settings and those of training on a map pool."""
 
     map_pool: int = setting(

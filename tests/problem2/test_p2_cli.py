@@ -13,9 +13,8 @@ from pathlib import Path
 
 import pytest
 from batch.plumbing import ProgressLine, parse_config
-from settings import RULES, SettingError, validated
+from settings import RULES, BatchConfig, SettingError, validated
 from studies.pool_training import POOL_RULES, PoolConfig
-from train_config import TrainConfig
 
 from tests.conftest import PROBLEM2, load_problem_module
 
@@ -118,14 +117,14 @@ def test_every_bad_setting_is_reported_not_only_the_first(tmp_path: Path, capsys
 
 def test_a_relation_is_checked_beside_single_settings_but_not_on_an_invalid_one() -> None:
     with pytest.raises(SettingError) as error:
-        validated(TrainConfig(gamma=2.0, epsilon_start=0.1, epsilon_end=0.5))
+        validated(BatchConfig(gamma=2.0, epsilon_start=0.1, epsilon_end=0.5))
     assert [name for name, _, _ in error.value.problems] == ["gamma", "epsilon_end"]
     assert (error.value.name, error.value.value) == ("gamma", 2.0)  # the first problem
     assert (
         str(error.value).splitlines()[1] == "epsilon_end must not exceed epsilon_start 0.1, got 0.5"
     )
     with pytest.raises(SettingError) as error:
-        validated(TrainConfig(epsilon_start=2.0, epsilon_end=0.5))  # no comparison with 2.0
+        validated(BatchConfig(epsilon_start=2.0, epsilon_end=0.5))  # no comparison with 2.0
     assert [name for name, _, _ in error.value.problems] == ["epsilon_start"]
 
 
@@ -140,7 +139,7 @@ def test_output_dir_that_is_a_file_is_refused(tmp_path: Path, capsys) -> None:
 def test_settings_from_python_are_checked_too() -> None:
     for bad in ({"lr": "0.1"}, {"keep_best": 1}, {"eval_episodes": 2.0}, {"seeds": [1, True]}):
         with pytest.raises(ValueError, match=next(iter(bad))):
-            validated(TrainConfig(**bad))
+            validated(BatchConfig(**bad))
 
 
 def test_list_flags_accept_spaces_and_commas_and_every_flag_its_dashed_spelling() -> None:
@@ -160,13 +159,13 @@ def test_list_flags_accept_spaces_and_commas_and_every_flag_its_dashed_spelling(
 
 
 def test_skeleton_grid_size_list_means_the_same_grid() -> None:
-    assert validated(TrainConfig(grid_size=[10, 10])).grid_size == 10
-    assert validated(TrainConfig(grid_size=[6, 9])).grid_shape() == (6, 9)
+    assert validated(BatchConfig(grid_size=[10, 10])).grid_size == 10
+    assert validated(BatchConfig(grid_size=[6, 9])).grid_shape() == (6, 9)
 
 
 def test_workers_default_to_the_available_cores() -> None:
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    assert TrainConfig().workers == cores
+    assert BatchConfig().workers == cores
 
 
 def run_train(args: list[str], cwd: Path, encoding: str | None = None, timeout: float = 300):
@@ -257,7 +256,7 @@ def test_progress_without_terminal_prints_a_plain_line_every_interval() -> None:
 
 
 def test_every_setting_has_one_rule_and_every_rule_a_setting() -> None:
-    for config, rules in ((TrainConfig, RULES), (PoolConfig, POOL_RULES)):
+    for config, rules in ((BatchConfig, RULES), (PoolConfig, POOL_RULES)):
         assert list(rules) == [spec.name for spec in dataclasses.fields(config)]
 
 

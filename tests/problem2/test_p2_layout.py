@@ -21,7 +21,7 @@ SUBFOLDERS = ("analysis", "studies", "batch")
 COURSE_ENTRY_SCRIPTS = {"train.py": {"batch"}, "evaluate.py": {"analysis", "batch"}}
 # Modules and code lines of the learner's import closure: a ceiling at today's size, so the
 # closure cannot grow unnoticed.
-LEARNER_BUDGET = (7, 1644)
+LEARNER_BUDGET = (7, 1579)
 STUDY_EXTENSIONS = ("map_pool", "share_weights", "prioritized", "dueling", "coverage_bonus")
 STUDY_EXTENSIONS += ("on_target_bonus", "memory")
 

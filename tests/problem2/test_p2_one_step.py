@@ -11,6 +11,7 @@ import pytest
 import torch
 from batch.experiments import run_experiments
 from rollout import run_episodes
+from settings import BatchConfig
 from studies.memory.agents import memory_policy
 from studies.one_step import why
 from studies.one_step.agents import (
@@ -20,7 +21,6 @@ from studies.one_step.agents import (
     memory_mask,
 )
 from studies.one_step.panel import memory_pair_policy
-from train_config import TrainConfig
 from vector_env import VectorMultiAgentEnv
 
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.\\w+` is deprecated:DeprecationWarning")
@@ -72,7 +72,7 @@ def test_augment_puts_message_and_distance_last() -> None:
     np.testing.assert_array_equal(out[..., MOVE], [[[0] * 5, [0, 0, 0, 0, 1]]])
 
 
-def small_config(mode: str, output_dir: Path, **kw: object) -> TrainConfig:
+def small_config(mode: str, output_dir: Path, **kw: object) -> BatchConfig:
     settings = dict(
         mode=mode,
         map_seed=4,
@@ -86,7 +86,7 @@ def small_config(mode: str, output_dir: Path, **kw: object) -> TrainConfig:
         output_dir=str(output_dir),
         workers=1,
     )
-    return TrainConfig(**(settings | kw))
+    return BatchConfig(**(settings | kw))
 
 
 def make_trainer(mode: str, tmp_path: Path) -> OneStepMemoryTrainer:

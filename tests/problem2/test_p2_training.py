@@ -17,7 +17,7 @@ from batch.plumbing import build_parser, parse_config
 from models import AgentDQN, DuelingDQN, PairedQNetworks
 from multi_agent_env import MultiAgentEnv
 from rollout import evaluate_policy
-from train_config import TrainConfig
+from settings import BatchConfig
 
 from tests.conftest import load_problem_module, weights_of
 
@@ -45,7 +45,7 @@ TINY = [
 ]
 
 
-def tiny_config(*extra: str) -> TrainConfig:
+def tiny_config(*extra: str) -> BatchConfig:
     return parse_config([*TINY, *extra])
 
 
@@ -108,7 +108,7 @@ def test_observation_mask_zeroes_the_hidden_inputs() -> None:
 # ---------------------------------------------------------------------- configuration
 def test_every_field_has_a_flag_in_both_spellings_with_its_help_text() -> None:
     flags = build_parser()._option_string_actions
-    for spec in dataclasses.fields(TrainConfig):
+    for spec in dataclasses.fields(BatchConfig):
         help_text = spec.metadata["help"]
         assert help_text and "\n" not in help_text, f"field {spec.name} has no one-line help"
         for flag in (f"--{spec.name}", f"--{spec.name.replace('_', '-')}"):

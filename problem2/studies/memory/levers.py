@@ -28,8 +28,7 @@ from analysis.stats import seed_statistics
 from batch.plumbing import ProgressLine, make_console_safe, run_jobs, usage, write_json_atomic
 from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
-from settings import SettingError, validated
-from train_config import available_cores
+from settings import SettingError, available_cores, validated
 
 from studies.memory.learner import Levers, RecurrentTrainer
 from studies.memory.study import RECIPE, RESULTS

@@ -40,8 +40,7 @@ from matplotlib.figure import Figure
 from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED
-from settings import SettingError, check_value, int_in, validated
-from train_config import available_cores
+from settings import SettingError, available_cores, check_value, int_in, validated
 
 from studies import map_pool_study
 from studies.memory.agents import MEMORY_MODES

@@ -36,7 +36,7 @@ from batch.experiments import run_experiments
 from batch.plumbing import ProgressLine, make_console_safe, run_jobs, write_json_atomic
 from models import use_reproducible_matmul
 from rollout import EVAL_EPSILON, EVAL_SEED, PolicyFn, run_episodes
-from train_config import TrainConfig, available_cores
+from settings import BatchConfig, available_cores
 from vector_env import VectorMultiAgentEnv
 
 from studies.memory.agents import memory_policy
@@ -63,7 +63,7 @@ def train_map(map_seed: int, output_dir: Path, workers: int, total_steps: int | 
     )
     if total_steps is not None:
         settings["total_steps"] = total_steps
-    run_experiments(TrainConfig(**settings), trainer_class=OneStepMemoryTrainer)
+    run_experiments(BatchConfig(**settings), trainer_class=OneStepMemoryTrainer)
 
 
 def exploration(env: VectorMultiAgentEnv, epsilon: float, seed: int = EVAL_SEED) -> PolicyFn:

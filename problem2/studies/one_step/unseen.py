@@ -35,8 +35,7 @@ from batch.plumbing import ProgressLine, make_console_safe, run_jobs, write_json
 from matplotlib.figure import Figure
 from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
-from settings import validated
-from train_config import available_cores
+from settings import available_cores, validated
 
 from studies import map_pool_study
 from studies.memory import study as gru_study

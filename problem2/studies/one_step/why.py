@@ -41,7 +41,7 @@ from batch.plumbing import make_console_safe, write_json_atomic
 from matplotlib.figure import Figure
 from models import use_reproducible_matmul
 from rollout import EVAL_SEED, run_episodes
-from train_config import TrainConfig, available_cores
+from settings import BatchConfig, available_cores
 from vector_env import VectorMultiAgentEnv
 
 from studies.memory.agents import memory_policy
@@ -82,7 +82,7 @@ def train_ablations(workers: int) -> None:
         for map_seed in MAPS:
             settings = dict(mode=MODE, map_seed=map_seed, seed=SEEDS[0], num_seeds=len(SEEDS))
             folder = ABLATIONS_DIR / part / f"map{map_seed}"
-            cfg = TrainConfig(**settings, overwrite=True, output_dir=str(folder), workers=workers)
+            cfg = BatchConfig(**settings, overwrite=True, output_dir=str(folder), workers=workers)
             run_experiments(cfg, trainer_class=trainer_class)
 
 
