@@ -458,25 +458,23 @@ def test_manifest_runs_are_evaluated_and_foreign_or_changed_files_refused(
         discover_experiments(models)
 
 
-def test_without_manifest_the_files_found_are_evaluated_with_a_note(
-    tiny_root: Path, tmp_path: Path, capsys
+def test_cli_survives_a_cp1252_console_and_without_manifest_notes_the_files_found(
+    tiny_root: Path, tmp_path: Path
 ) -> None:
+    """One full evaluation (the slowest test's work, done once): on a cp1252 console, of
+    model files without their manifest (e.g. trained before manifests existed)."""
     models = tmp_path / "agent_models"
     shutil.copytree(tiny_root / "agent_models", models)
-    (models / "manifest.json").unlink()  # e.g. models trained before manifests existed
-    main(_quick(models))
-    assert "no manifest.json" in capsys.readouterr().out
-
-
-def test_cli_survives_a_cp1252_console(tiny_root: Path, tmp_path: Path) -> None:
+    (models / "manifest.json").unlink()
     result = subprocess.run(
-        [sys.executable, "evaluate.py", *_quick(tiny_root / "agent_models", "--render")],
+        [sys.executable, "evaluate.py", *_quick(models, "--render")],
         cwd=PROBLEM2,
         capture_output=True,
         env=os.environ | {"PYTHONIOENCODING": "cp1252"},
     )
     assert result.returncode == 0, result.stderr.decode("cp1252", "replace")
     assert b"success greedy" in result.stdout
+    assert b"no manifest.json" in result.stdout
     result = subprocess.run(
         [
             sys.executable,
