@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import io
 import json
@@ -99,11 +100,22 @@ def test_the_reward_study_section_is_typeset_from_its_results_file() -> None:
     assert len(found) == 1
 
 
+@functools.cache
+def marker_pages() -> dict[str, list[int]]:
+    """Label -> the physical pages of the document's metadata markers so labelled, in
+    document order (one compilation for every test that reads them)."""
+    found = json.loads(typst.query(str(ROOT / build.MAIN), "metadata", **build.typst_options()))
+    pages: dict[str, list[int]] = {}
+    for marker in found:
+        pages.setdefault(marker.get("label", "").strip("<>"), []).append(marker["value"])
+    return pages
+
+
 def page_of(label: str) -> int:
     """The physical page on which the document's metadata ``label`` stands."""
-    found = json.loads(typst.query(str(ROOT / build.MAIN), f"<{label}>", **build.typst_options()))
+    found = marker_pages().get(label, [])
     assert len(found) == 1, f"one {label} marker expected"
-    return found[0]["value"]
+    return found[0]
 
 
 def test_the_main_part_holds_problem_1_and_2_in_at_most_12_pages() -> None:
@@ -117,11 +129,7 @@ def test_the_answer_to_the_question_ends_on_the_first_page() -> None:
 
 
 def test_no_table_splits_across_pages() -> None:
-    def pages(label: str) -> list[int]:
-        found = json.loads(typst.query(str(ROOT / build.MAIN), label, **build.typst_options()))
-        return [marker["value"] for marker in found]
-
-    tops, bottoms = pages("<table-top>"), pages("<table-bottom>")
+    tops, bottoms = marker_pages()["table-top"], marker_pages()["table-bottom"]
     assert len(tops) == len(bottoms) > 10
     assert [(t, b) for t, b in zip(tops, bottoms, strict=True) if t != b] == []
 
