@@ -208,9 +208,9 @@ def plot_trajectories(
         if messages is not None:
             fig.get_layout_engine().set(h_pad=0.08, hspace=0.06)  # titles clear of the row above
             for means, row_axes in zip(messages, axes[:, 2:], strict=True):
-                for agent, ax in zip("AB", row_axes, strict=True):
-                    image = draw_message_map(ax, grid, means["AB".index(agent)])
-                    ax.set_title(f"message sent by {agent}", fontsize=MIN_FONT)
+                for agent, ax in enumerate(row_axes):
+                    image = draw_message_map(ax, grid, means[agent])
+                    ax.set_title(f"message sent by {'AB'[agent]}", fontsize=MIN_FONT)
             # One scale, the channel's whole range, for every row: rows compare directly.
             bar = fig.colorbar(image, ax=axes[:, 2:], shrink=0.5, aspect=20)
             bar.set_label("mean message", fontsize=MIN_FONT)
