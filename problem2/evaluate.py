@@ -44,8 +44,7 @@ from analysis.runs import (
     model_paths,
     resolve_checkpoint,
 )
-from batch.plumbing import make_console_safe
-from models import use_reproducible_matmul
+from batch.plumbing import make_console_safe, use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON
 

@@ -67,11 +67,9 @@ def check_grid(grid: np.ndarray | list) -> np.ndarray:
         raise ValueError(f"map must contain exactly one target (2), found {n_targets}")
     if (array == FREE).sum() < 2:
         raise ValueError("map needs at least two free cells to place the agents")
-    cut_off = np.argwhere((array == FREE) & ~reaches_target(array[None])[0])
-    if len(cut_off):
-        raise ValueError(
-            f"map is not connected: free cells {cut_off[:5].tolist()} cannot reach the target"
-        )
+    cut_off = np.argwhere((array == FREE) & ~reaches_target(array[None])[0])[:5].tolist()
+    if cut_off:
+        raise ValueError(f"map is not connected: free cells {cut_off} cannot reach the target")
     return array.astype(np.int64)
 
 

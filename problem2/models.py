@@ -1,5 +1,6 @@
-"""Q-networks with a message head (one agent's, and both agents' stacked for training),
-observation masks of the ablations, and TorchScript export of a network with its mask.
+"""Q-networks with a message head (one agent's, and both agents' stacked for training), the
+observation masks of the ablations, and the form a policy file holds: a network behind its
+mask (``batch.plumbing.export_policy`` writes it as TorchScript).
 
 Both networks follow the assignment's formula with one hidden layer:
     h = ReLU(W1 x + b1),   Q = W_q h + b_q  (or DuelingDQN's form),   m = sigmoid(w_m·h + b_m)
@@ -8,14 +9,7 @@ Both networks follow the assignment's formula with one hidden layer:
 from __future__ import annotations
 
 import copy
-import hashlib
-import io
-import os
-import warnings
-import zipfile
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
-from pathlib import Path
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -49,25 +43,14 @@ def observation_mask(mode: str, obs_dim: int = OBSERVATION_DIM) -> np.ndarray:
     return mask
 
 
-OBSERVATION_MASKS = {mode: observation_mask(mode) for mode in MASKED_INPUTS}  # (11,) each
-
-
-def use_reproducible_matmul() -> None:
-    """Make matrix products take MKL's AVX2 code path on every x86 CPU with AVX2 (Intel or
-    AMD, AVX-512 or not; MKL's conditional numerical reproducibility), so a seed trains the
-    same bytes on any of them. Every entry point calls it first: it takes effect at the
-    process's first matrix product, and worker processes inherit it. A value set by the user
-    is kept."""
-    os.environ.setdefault("MKL_CBWR", "AVX2")
-
-
 class MessagingQNetwork(nn.Module):
-    """Shared part: the hidden ReLU layer, the sigmoid message head and ``forward``.
-    Subclasses add the Q head(s) and define ``forward_with_logit(x) -> (q, logit)``."""
+    """Shared part: the size checks, the hidden ReLU layer, the sigmoid message head and
+    ``forward``. Subclasses add the Q head(s) and define ``forward_with_logit(x) -> (q, logit)``."""
 
-    def __init__(self, input_dim: int, hidden_dim: int) -> None:
+    def __init__(self, input_dim: int, hidden_dim: int, num_actions: int) -> None:
         super().__init__()
-        for name, value in (("input_dim", input_dim), ("hidden_dim", hidden_dim)):
+        sizes = {"input_dim": input_dim, "hidden_dim": hidden_dim, "num_actions": num_actions}
+        for name, value in sizes.items():
             positive_int(value, name)
         self.hidden = nn.Linear(input_dim, hidden_dim)
         self.message_head = nn.Linear(hidden_dim, 1)
@@ -83,8 +66,7 @@ class AgentDQN(MessagingQNetwork):
     """Q-values over ``num_actions`` actions and a message in [0, 1] from one hidden layer."""
 
     def __init__(self, input_dim: int = 11, hidden_dim: int = 64, num_actions: int = 5) -> None:
-        super().__init__(input_dim, hidden_dim)
-        positive_int(num_actions, "num_actions")
+        super().__init__(input_dim, hidden_dim, num_actions)
         self.q_head = nn.Linear(hidden_dim, num_actions)
 
     def forward_with_logit(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -100,8 +82,7 @@ class DuelingDQN(MessagingQNetwork):
     heads on the shared hidden layer."""
 
     def __init__(self, input_dim: int = 11, hidden_dim: int = 64, num_actions: int = 5) -> None:
-        super().__init__(input_dim, hidden_dim)
-        positive_int(num_actions, "num_actions")
+        super().__init__(input_dim, hidden_dim, num_actions)
         self.value_head = nn.Linear(hidden_dim, 1)
         self.advantage_head = nn.Linear(hidden_dim, num_actions)
 
@@ -127,21 +108,18 @@ class StackedLinear(nn.Module):
 
 
 class PairedQNetworks(nn.Module):
-    """Both agents' networks as one module, for training: each agent keeps its own weights
-    (independent learners) and one batched pass evaluates both.
-
-    ``stacked`` is an :class:`AgentDQN` (or :class:`DuelingDQN`) whose every layer is a
-    :class:`StackedLinear` of the two agents' layers, so the forward that runs is the agent
-    network's own ``forward_with_logit``: the math is written once. :meth:`agent` turns one
-    agent's slice back into a plain network with identical outputs (for export).
-    """
+    """Both agents' networks as one module, for training: each keeps its own weights
+    (independent learners) and one batched pass evaluates both. ``stacked`` is an AgentDQN (or
+    DuelingDQN) whose layers are :class:`StackedLinear`, so the agent network's own
+    ``forward_with_logit`` runs (the math is written once); :meth:`agent` returns one agent's
+    slice as a plain network with identical outputs."""
 
     def __init__(
         self,
-        input_dim: int = 11,
-        hidden_dim: int = 64,
-        num_actions: int = 5,
-        network_class: type[MessagingQNetwork] = AgentDQN,
+        input_dim: int,
+        hidden_dim: int,
+        num_actions: int,
+        network_class: type[MessagingQNetwork],
     ) -> None:
         super().__init__()
         self.network_class = network_class
@@ -166,25 +144,9 @@ class PairedQNetworks(nn.Module):
             layer.bias.copy_(stacked.bias[index, 0])
         return network
 
-    @torch.no_grad()
-    def load_agents(self, networks: Sequence[MessagingQNetwork]) -> None:
-        """Copy two standalone networks into the stacked weights."""
-        for index, network in enumerate(networks):
-            for name, layer in network.named_children():
-                stacked = getattr(self.stacked, name)
-                stacked.weight[index].copy_(layer.weight)
-                stacked.bias[index, 0].copy_(layer.bias)
 
-
-@contextmanager
-def _torchscript_without_deprecation_warnings() -> Iterator[None]:
-    """torch 2.13 marks ``torch.jit`` deprecated, but the course requires TorchScript files
-    that load with ``torch.jit.load`` alone, so the warning is expected here."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", r"`torch\.jit\.\w+` is deprecated", DeprecationWarning)
-        yield
-
-
+# ------------------------------------------------ the form a policy file holds
+# Their class paths are written into every policy file (``batch.plumbing.export_policy``).
 class _ExportLinear(nn.Module):
     """``nn.Linear`` without TorchScript constants. TorchScript writes a module's constants
     (``in_features``, ``out_features``) in set order, which follows Python's per-process
@@ -218,25 +180,6 @@ class MaskedPolicy(nn.Module):
         return self.network(obs * self.mask)
 
 
-def export_policy(
-    network: MessagingQNetwork,
-    mask: str | Sequence[float] | np.ndarray | torch.Tensor,
-    path: str | Path,
-) -> Path:
-    """Script ``network`` behind ``mask`` (an ablation name, for any input_dim, or input_dim
-    numbers) and save it atomically with ``torch.jit.save``. ``network`` itself is left
-    untouched (a CPU copy in eval mode is exported). Returns the path written."""
-    input_dim = network.hidden.in_features
-    if isinstance(mask, str):
-        mask = observation_mask(mask, input_dim)
-    elif isinstance(mask, torch.Tensor):
-        mask = mask.detach().cpu().numpy()
-    mask_tensor = torch.from_numpy(np.array(mask, dtype=np.float32)).flatten()  # a copy
-    if mask_tensor.numel() != input_dim:
-        raise ValueError(f"mask has {mask_tensor.numel()} elements; the network takes {input_dim}")
-    return save_scripted(MaskedPolicy(exportable_copy(network), mask_tensor), path)
-
-
 def exportable_copy(network: nn.Module) -> nn.Module:
     """A CPU copy of ``network`` in eval mode without gradients, its ``nn.Linear`` layers
     replaced by :class:`_ExportLinear` (byte-stable TorchScript); ``network`` is untouched."""
@@ -245,45 +188,3 @@ def exportable_copy(network: nn.Module) -> nn.Module:
         if isinstance(child, nn.Linear):
             setattr(exported, name, _ExportLinear(child))
     return exported
-
-
-def save_scripted(module: nn.Module, path: str | Path) -> Path:
-    """Script ``module`` and save it atomically, the same weights giving the same bytes
-    anywhere (:func:`_without_debug_sources`). Returns the path written."""
-    # Saving to memory first keeps the archive's inner folder name fixed ("archive", not the
-    # temporary file's name), so the same weights always give byte-identical files.
-    buffer = io.BytesIO()
-    with _torchscript_without_deprecation_warnings():
-        torch.jit.save(torch.jit.script(module), buffer)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # Written under a temporary name, then renamed: an interrupted save leaves no half file.
-    temporary = path.with_name(f".{path.name}.tmp.{os.getpid()}")
-    try:
-        temporary.write_bytes(_without_debug_sources(buffer.getvalue()))
-        os.replace(temporary, path)
-    finally:
-        temporary.unlink(missing_ok=True)
-    return path
-
-
-def _without_debug_sources(archive: bytes) -> bytes:
-    """Make a TorchScript archive depend on its content only: drop the ``*.debug_pkl``
-    entries (source maps holding this file's absolute path, which ``torch.jit.load`` does not
-    need), and replace the random per-process ``.data/serialization_id`` by 40 digits of a
-    SHA-256 of the other entries, so equal weights give byte-identical files anywhere."""
-    source = zipfile.ZipFile(io.BytesIO(archive))
-    entries = [e for e in source.infolist() if not e.filename.endswith(".debug_pkl")]
-    digest = hashlib.sha256()
-    for entry in entries:
-        if not entry.filename.endswith("serialization_id"):
-            digest.update(entry.filename.encode() + source.read(entry.filename))
-    content_id = str(int(digest.hexdigest(), 16))[:40].zfill(40).encode()
-    output = io.BytesIO()
-    with zipfile.ZipFile(output, "w", zipfile.ZIP_STORED) as stripped:
-        for entry in entries:
-            data = source.read(entry.filename)
-            stripped.writestr(
-                entry, content_id if entry.filename.endswith("serialization_id") else data
-            )
-    return output.getvalue()

@@ -20,7 +20,7 @@ Positions are (row, col), row 0 at the top.
 from __future__ import annotations
 
 import numpy as np
-from grid_maps import NUM_ACTIONS, OBSTACLE, TARGET
+from grid_maps import FREE, NUM_ACTIONS, OBSTACLE, TARGET
 from vector_env import VectorMultiAgentEnv
 
 
@@ -66,6 +66,27 @@ def render_state(
     )
 
 
+class _OneCopy(VectorMultiAgentEnv):
+    """The vector environment with what the course interface reads and sets besides a step:
+    the agents moved by hand, the messages, one move from a cell."""
+
+    @VectorMultiAgentEnv.positions.setter
+    def positions(self, positions: np.ndarray) -> None:
+        """Move the agents by hand to (N, 2, 2) passable cells; the episode goes on (step
+        count and messages kept), an agent placed on the target having reached it."""
+        self._flat = self._check_cells(positions, "positions")
+        self._visited |= self._flat == self._copy_target[:, None]
+
+    @property
+    def messages(self) -> np.ndarray:
+        """Last messages sent (N, 2) float32: [:, 0] by A, [:, 1] by B."""
+        return self._messages.copy()
+
+    def next_cell(self, row: int, col: int, action: int) -> np.ndarray:
+        """The cell (2,) reached from the passable cell (row, col) by ``action``."""
+        return self._rows_cols(self._move(self._to_flat(row, col), action))
+
+
 class MultiAgentEnv:
     """One environment with the course interface: an N = 1 view of VectorMultiAgentEnv.
 
@@ -82,7 +103,7 @@ class MultiAgentEnv:
         reward_mode: str = "per_step",
         grid: np.ndarray | None = None,
     ) -> None:
-        self._vector = VectorMultiAgentEnv(
+        self._vector = _OneCopy(
             1, grid_size, obs_window, max_steps, seed, reward_mode, grid, auto_reset=False
         )
         self.grid_size = self._vector.grid_size
@@ -150,12 +171,12 @@ class MultiAgentEnv:
         """Cell reached from ``pos`` by ``action`` (``pos`` itself if the move is blocked)."""
         if not self._is_valid_position(pos):
             raise ValueError(f"pos {pos} is off the grid or on an obstacle")
-        row, col = self._vector.next_cells(pos[0], pos[1], _action(action, "action"))
+        row, col = self._vector.next_cell(pos[0], pos[1], _action(action, "action"))
         return int(row), int(col)
 
     def _find_free_cells(self) -> list[tuple[int, int]]:
         """Free cells (value 0, not the target) as (row, col): where agents may start."""
-        return [(int(r), int(c)) for r, c in self._vector.free_cells]
+        return [(int(r), int(c)) for r, c in np.argwhere(self.grid == FREE)]
 
     def render(self) -> None:
         """Print the grid with the agents, the step and the last messages."""

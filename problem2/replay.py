@@ -38,31 +38,23 @@ def stored_name(field: str) -> str:
 class ReplayBuffer:
     """Uniform replay over the last ``capacity`` joint transitions; ``seed`` seeds sampling.
 
-    The first push fixes the fields and their shapes: one array per field, a pair of agent
-    fields (``state_A``, ``state_B``) as one array with the agent axis first. Actions are
-    stored as int64, everything else as float32. One way in, :meth:`push_batch`; one way out,
-    :meth:`get`. The course's ``replay_buffer.ReplayBuffer`` adds ``push``, ``sample`` and
-    the checks of transitions pushed by hand.
+    The first push fixes the fields and their shapes (actions int64, the rest float32). One
+    way in, :meth:`push_batch`; one way out, :meth:`get`. The course's
+    ``replay_buffer.ReplayBuffer`` adds ``push``, ``sample`` and checks of hand-made pushes.
     """
 
     def __init__(self, capacity: int = 10000, seed: int | None = None) -> None:
         self.capacity = positive_int(capacity, "capacity")
         self._rng = np.random.default_rng(seed)
-        self._arrays: dict[
-            str, np.ndarray
-        ] = {}  # stored name -> (capacity, ...) or (2, capacity, ...)
-        self._fields: tuple[str, ...] = ()  # the fields pushed, required ones first
+        # stored name -> (capacity, ...), or (2, capacity, ...) for a pair of agent fields
+        self._arrays: dict[str, np.ndarray] = {}
+        self.field_names: tuple[str, ...] = ()  # set by the first push: the ten, then extras
         self._paired: set[str] = set()  # stored names of the A/B pairs (agent axis first)
         self._size = 0
         self._next_slot = 0
 
     def __len__(self) -> int:
         return self._size
-
-    @property
-    def field_names(self) -> tuple[str, ...]:
-        """The ten required fields, then the extras (empty before the first push)."""
-        return self._fields
 
     def push_batch(self, **arrays: np.ndarray) -> np.ndarray:
         """Store B transitions: the ten required fields and any extras as keywords, each an
@@ -96,27 +88,25 @@ class ReplayBuffer:
     def _allocate(self, arrays: dict[str, np.ndarray]) -> None:
         """Fix the fields by those of the first push, with their per-transition shapes."""
         extras = sorted(set(arrays) - set(TRANSITION_FIELDS))
-        self._fields = (*TRANSITION_FIELDS, *extras)
-        self._paired = {stored_name(name) for name in self._fields if name.endswith(("_A", "_B"))}
-        for name in self._fields:
+        fields = self.field_names = (*TRANSITION_FIELDS, *extras)
+        self._paired = {stored_name(name) for name in fields if name.endswith(("_A", "_B"))}
+        for name in fields:
             dtype = np.int64 if stored_name(name) == "action" else np.float32
             agents = (2,) if name.endswith(("_A", "_B")) else ()
             shape = (*agents, self.capacity, *arrays[name].shape[1:])
             self._arrays.setdefault(stored_name(name), np.zeros(shape, dtype))
 
     def _check_like_first_push(self, arrays: dict[str, np.ndarray]) -> None:
-        if set(arrays) != set(self._fields):
+        if set(arrays) != set(self.field_names):
             raise ValueError(
                 f"fields {sorted(arrays)} differ from those of the first push "
-                f"{sorted(self._fields)}"
+                f"{sorted(self.field_names)}"
             )
         for name, value in arrays.items():
             stored = self._arrays[stored_name(name)]
             shape = stored.shape[2:] if name.endswith(("_A", "_B")) else stored.shape[1:]
             if value.shape[1:] != shape:
-                raise ValueError(
-                    f"{name} has per-transition shape {value.shape[1:]}, the buffer holds {shape}"
-                )
+                raise ValueError(f"{name} has per-transition shape {value.shape[1:]}, not {shape}")
 
     def _check_transitions(self, arrays: dict[str, np.ndarray]) -> None:
         """Hook: check a push's values (the course's buffer does; the trainer's come checked)."""
@@ -132,9 +122,7 @@ class ReplayBuffer:
         """Draw ``batch_size`` stored slots (B,) int64."""
         batch_size = positive_int(batch_size, "batch_size")
         if batch_size > self._size:
-            raise ValueError(
-                f"cannot sample {batch_size} transitions: the buffer holds {self._size}"
-            )
+            raise ValueError(f"cannot sample {batch_size} transitions: it holds {self._size}")
         return self._draw_indices(batch_size)
 
     def get(self, indices: np.ndarray) -> dict[str, np.ndarray]:

@@ -1,7 +1,6 @@
-"""The one episode loop of Problem 2, and the evaluation protocol's constants.
-
-Every evaluation (the trainer's validation, the evaluator's test episodes, the baselines)
-runs a policy through :func:`run_episodes`, many episodes at once, start cells from a seed.
+"""The one episode loop of Problem 2 (every evaluation runs a policy through
+:func:`run_episodes`, many episodes at once, start cells from a seed), the evaluation
+protocol's constants, and the n-step transitions that learning collects.
 
 A policy is a plain function ``(observations (N, 2, obs_dim), positions (N, 2, 2)) ->
 (actions (N, 2) ints in 0..4, messages (N, 2) in [0, 1])``.
@@ -14,6 +13,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from grid_maps import positive_int
 from vector_env import VectorMultiAgentEnv
 
 PolicyFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -144,9 +144,7 @@ class NStepWindow:
     """
 
     def __init__(self, n_step: int, gamma: float, n_envs: int) -> None:
-        if isinstance(n_step, bool) or not isinstance(n_step, int) or n_step < 1:
-            raise ValueError(f"n_step must be a positive integer, got {n_step!r}")
-        self.n_step, self.gamma, self.n_envs = n_step, float(gamma), n_envs
+        self.n_step, self.gamma, self.n_envs = positive_int(n_step, "n_step"), float(gamma), n_envs
         self.discounts = np.array([self.gamma**k for k in range(n_step + 1)])  # γ^k
         self.started: dict[str, np.ndarray] = {}  # each start field's ring (n * N, ...)
         self.returns = np.zeros((n_step, n_envs))  # discounted rewards so far (float64)
@@ -232,9 +230,7 @@ class Rollout:
         self.returns += rewards
         finished_returns = self.returns[finished].copy()
         self.returns[finished] = 0.0
-        self.prev_obs = np.where(finished[:, None, None], 0.0, self.obs).astype(
-            np.float32, copy=False
-        )
+        self.prev_obs = np.where(finished[:, None, None], np.float32(0), self.obs)
         self.has_prev = (~finished).astype(np.float32)
         self.obs = next_obs
         return finished_returns

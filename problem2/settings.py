@@ -39,6 +39,21 @@ class SettingError(ValueError):
         self.name, self.problem, self.value = name, problem, value
 
 
+def usage(error: SettingError) -> str:
+    """The usage error, a line per problem: ``argument --name: problem, got value``."""
+    return "\n".join(
+        f"argument --{name}: {problem}, got {shown_value(value)}"
+        for name, problem, value in error.problems
+    )
+
+
+def shown_value(value: Any) -> str:
+    """A value as typed on the command line (a list space-separated, a string quoted)."""
+    if isinstance(value, list):
+        return " ".join(str(v) for v in value)
+    return repr(value) if isinstance(value, str) else str(value)
+
+
 def check_value(name: str, value: Any, check: Check) -> None:
     """Raise :class:`SettingError` if ``check`` finds a problem with ``value``."""
     problem = check(value)

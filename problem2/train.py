@@ -5,30 +5,41 @@
     python train.py --help               # every hyperparameter, with its meaning and range
 
 The algorithm is ``trainer.DQNTrainer``; :class:`MultiAgentTrainer` adds the course
-skeleton's interface to it. The hyperparameters are in ``train_config.py``, the batch in
-``batch/experiments.py`` and the flags in ``batch/plumbing.py``; :func:`apply_observation_mask`
-is the course's masking function (the learner applies the same mask,
-``models.observation_mask``, inside its networks' inputs).
+skeleton's interface to it. The hyperparameters are in ``train_config.py`` and their rules
+in ``settings.py``; the command line here has one flag per :class:`~settings.BatchConfig`
+field (both spellings, the field's help and default; list flags take ``--seeds 641 642`` or
+``--seeds 641,642``), checks every value before any work, and refuses the flags that left
+the core with a message naming the command that now owns them. The batch is in
+``batch/experiments.py``; :func:`apply_observation_mask` is the course's masking function
+(the learner applies the same mask, ``models.observation_mask``, inside its networks' inputs).
 """
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import gc
 import sys
-from dataclasses import fields
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 import torch
-from batch.experiments import INTERRUPTED, check_output_dir, output_root, run_experiments
-from batch.plumbing import make_console_safe, parse_config_or_exit
+from batch.experiments import (
+    INTERRUPTED,
+    SavingTrainer,
+    check_output_dir,
+    output_root,
+    run_experiments,
+)
+from batch.plumbing import make_console_safe, use_reproducible_matmul
 from grid_maps import NUM_ACTIONS
-from models import observation_mask, use_reproducible_matmul
+from models import observation_mask
 from replay_buffer import ReplayBuffer
 from rollout import EVAL_SEED, Rollout
-from settings import validated
+from settings import BatchConfig, SettingError, usage, validated
 from train_config import TrainConfig
-from trainer import EVAL_EPSILON, DQNTrainer, step_fields
+from trainer import EVAL_EPSILON, step_fields
 
 __all__ = ["EVAL_EPSILON", "MultiAgentTrainer", "TrainConfig", "apply_observation_mask", "main"]
 
@@ -50,7 +61,7 @@ def config_from(args: Any) -> TrainConfig:
     other attributes ignored, ``grid_size`` among them: the map comes from the environment)."""
     if isinstance(args, TrainConfig):
         return args
-    known = {f.name for f in fields(TrainConfig)}
+    known = {f.name for f in dataclasses.fields(TrainConfig)}
     settings = {k: v for k, v in vars(args).items() if k in known and v is not None}
     if settings.get("mode", "all") == "all":
         settings["mode"] = "full"
@@ -58,8 +69,9 @@ def config_from(args: Any) -> TrainConfig:
     return validated(TrainConfig(**settings))
 
 
-class MultiAgentTrainer(DQNTrainer):
-    """The course skeleton's trainer: :class:`trainer.DQNTrainer` built from a bare
+class MultiAgentTrainer(SavingTrainer):
+    """The course skeleton's trainer: the learner (:class:`trainer.DQNTrainer`, writing policy
+    files as :class:`~batch.experiments.SavingTrainer` does) built from a bare
     ``argparse.Namespace`` (or a TrainConfig) with ``select_action``, ``train_episode``,
     ``evaluate`` and ``network_A`` / ``network_B`` on top."""
 
@@ -135,6 +147,132 @@ class MultiAgentTrainer(DQNTrainer):
             next_state_B=next_obs[:, 1],
             done=terminated,
         )
+
+
+# ------------------------------------------------------------------ the command line
+MAP_POOL_COMMAND = "python -m studies.map_pool_study"
+MOVED_FLAGS = {  # flag -> where it lives now
+    "map_pool": MAP_POOL_COMMAND,
+    "validation_maps": MAP_POOL_COMMAND,
+    "share_weights": MAP_POOL_COMMAND,
+    "coverage_bonus": MAP_POOL_COMMAND,
+    "on_target_bonus": MAP_POOL_COMMAND,
+    "prioritized": "no command: prioritised replay was retired from training "
+    "(replay_buffer.PrioritizedReplayBuffer remains, for the course interface)",
+    "dueling": "no command: the dueling head was retired from training "
+    "(models.DuelingDQN remains, for the course interface)",
+}
+
+
+class MovedFlag(argparse.Action):
+    """A flag that ``train.py`` no longer takes: a usage error saying where it went."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, nargs="?", **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:  # noqa: ANN001
+        owner = MOVED_FLAGS[self.dest]
+        parser.error(f"{option_string} is not a train.py flag any more; it belongs to {owner}")
+
+
+OUTPUT_RULE = """\
+Outputs (in --output_dir): agent_models/ (TorchScript pairs, manifest.json, map.json,
+hyperparameters.json) and training_logs/ (one CSV per run, <run>_selection.json, curves,
+timing.json).
+
+A batch is written into a hidden staging folder inside --output_dir and moved into place
+only when every run has finished, so the folder holds one whole batch or the previous one.
+Into a folder that holds a batch with other settings (or model files without a manifest)
+training refuses unless --overwrite is given; a re-run with identical settings replaces
+it. Settings other than the defaults never go into the default folder without --overwrite
+(choose another --output_dir). Interrupted with Ctrl-C, the batch leaves the evaluation
+rows it measured in <output_dir>/interrupted/training_logs/ and the results untouched.
+Stale temporary files of killed runs are removed at the next start."""
+
+
+def build_parser(cls: type = BatchConfig) -> argparse.ArgumentParser:
+    """One flag per dataclass field, in both spellings, with the field's help and default."""
+    parser = argparse.ArgumentParser(
+        description="Train the two agents (Problem 2).",
+        epilog=OUTPUT_RULE,
+        formatter_class=argparse.RawDescriptionHelpFormatter,  # the epilog's paragraphs kept
+    )
+    for spec in dataclasses.fields(cls):
+        factory = spec.default_factory
+        default = spec.default if factory is dataclasses.MISSING else factory()
+        names = list(dict.fromkeys([f"--{spec.name}", f"--{spec.name.replace('_', '-')}"]))
+        options: dict[str, Any] = {"dest": spec.name, "default": default}
+        # The output folder's default is an absolute path of this machine: its help names it.
+        shown_default = "" if spec.name == "output_dir" else " (default: %(default)s)"
+        options["help"] = spec.metadata["help"] + shown_default
+        if isinstance(default, bool):
+            options["action"] = argparse.BooleanOptionalAction
+        elif spec.metadata["items"]:
+            item_type, options["metavar"] = spec.metadata["items"]
+            options |= {"nargs": "+", "action": ListAction, "item_type": item_type}
+        else:
+            options["type"] = type(default)
+        parser.add_argument(*names, **options)
+    fields = {spec.name for spec in dataclasses.fields(cls)}
+    for name in (name for name in MOVED_FLAGS if name not in fields):  # a subclass may own it
+        spellings = {name, name.replace("_", "-")}
+        flags = [f"--{s}" for s in sorted(spellings)] + [f"--no-{s}" for s in sorted(spellings)]
+        parser.add_argument(
+            *flags,
+            dest=name,
+            action=MovedFlag,
+            default=argparse.SUPPRESS,
+            help=argparse.SUPPRESS,
+        )
+    return parser
+
+
+def parse_config(
+    argv: Sequence[str] | None = None, parser: argparse.ArgumentParser | None = None
+) -> BatchConfig:
+    """Parse and validate; bad values raise :class:`SettingError` (a ValueError)."""
+    values = vars((parser or build_parser()).parse_args(argv))
+    if isinstance(values.get("mode"), list):
+        values["mode"] = ",".join(values["mode"])
+    return validated(BatchConfig(**values))
+
+
+def parse_config_or_exit(
+    argv: Sequence[str] | None = None,
+    extra_check: Callable[[BatchConfig], None] | None = None,
+) -> BatchConfig:
+    """Parse and validate as the CLI does: bad values are an argparse usage error (exit 2)
+    naming, a line each, the flag, the value and the allowed range. ``extra_check`` (e.g.
+    the output folder rule) may raise SettingError too."""
+    parser = build_parser()
+    try:
+        cfg = parse_config(argv, parser)
+        if extra_check is not None:
+            extra_check(cfg)
+    except SettingError as error:
+        parser.error(usage(error))
+    return cfg
+
+
+class ListAction(argparse.Action):
+    """A list flag: values space- or comma-separated, each converted by ``item_type``."""
+
+    def __init__(self, *args: Any, item_type: Callable[[str], Any] = str, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.item_type = item_type
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:  # noqa: ANN001
+        items = []
+        for token in values if isinstance(values, list) else [values]:
+            for part in token.split(","):
+                if not part.strip():
+                    raise argparse.ArgumentError(self, f"empty item in {token!r}")
+                try:
+                    items.append(self.item_type(part.strip()))
+                except ValueError:
+                    name = getattr(self.item_type, "__name__", "value")
+                    raise argparse.ArgumentError(self, f"invalid {name} value: {part!r}") from None
+        setattr(namespace, self.dest, items)
 
 
 def main(argv: list[str] | None = None) -> list[dict[str, Any]]:

@@ -8,10 +8,9 @@ in the input mask (``models.observation_mask``) applied wherever a network sees 
 
 :meth:`DQNTrainer.train` is the loop, in DQN order: act (ε-greedy) → step → store → update
 (``td_loss`` → ``backward()`` → clip → Adam → target sync) → schedules → evaluate and log.
-The course skeleton's interface is ``train.MultiAgentTrainer``, a subclass; studies subclass
-through the hooks ``vector_env_class``, ``network_class``, :meth:`~DQNTrainer.make_vector_env`,
-:meth:`~DQNTrainer.learning_rewards`, :meth:`~DQNTrainer.input_mask`, :meth:`~DQNTrainer.sample`,
-:meth:`~DQNTrainer.after_backward` and :meth:`~DQNTrainer.save_models`.
+``train.MultiAgentTrainer`` adds the course skeleton's interface. Studies subclass it through
+``make_vector_env``, ``input_mask``, ``learning_rewards``, ``sample``, ``after_backward`` and
+``save_models``.
 """
 
 from __future__ import annotations
@@ -28,7 +27,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from grid_maps import NUM_ACTIONS, TARGET
-from models import AgentDQN, PairedQNetworks, export_policy, observation_mask
+from models import AgentDQN, PairedQNetworks, observation_mask
 from replay import ReplayBuffer, TransitionBatch, sample_batch
 from rollout import (
     EVAL_EPSILON,
@@ -62,8 +61,7 @@ def step_fields(
 
 @dataclass
 class Checkpoint:
-    """The weights of one periodic evaluation and their results on the validation episodes
-    (:func:`rollout.summarize` dicts, greedy and at ε = 0.05)."""
+    """The weights of one periodic evaluation and their validation results (greedy, ε = 0.05)."""
 
     env_steps: int
     greedy: dict[str, Any]
@@ -181,9 +179,8 @@ class DQNTrainer:
         with torch.inference_mode():
             q_values, logits = self.online(torch.from_numpy(obs).transpose(0, 1) * self.mask)
             logits = logits[..., 0]  # (2, N)
-            if noisy_messages and self.cfg.comm_noise > 0:  # DIAL's noise on the logit
-                noise = torch.randn(logits.shape, generator=self.noise_rng)
-                logits = logits + self.cfg.comm_noise * noise
+            if noisy_messages:
+                logits = self.with_noise(logits)
             messages = torch.sigmoid(logits).T.numpy()
         actions = q_values.numpy().argmax(axis=-1).T  # the first best, as torch.max picks
         if epsilon > 0:  # a greedy policy draws nothing
@@ -338,9 +335,7 @@ class DQNTrainer:
         pushed by hand) the stored message stays. The message in s' comes from the partner's
         target network on its observation one step before s' (``last_obs``), no gradient."""
         _, logits = self.online(batch.prev_obs * self.mask)
-        if self.cfg.comm_noise > 0:
-            noise = torch.randn(logits.shape, generator=self.noise_rng)
-            logits = logits + self.cfg.comm_noise * noise
+        logits = self.with_noise(logits)
         with torch.no_grad():
             next_received = torch.sigmoid(self.target(batch.last_obs * self.mask)[1]).flip(0)
         # (2, B, 1) messages written into the message column (D,): where a previous
@@ -349,13 +344,18 @@ class DQNTrainer:
         obs = torch.where(spliced, torch.sigmoid(logits).flip(0), obs)
         return obs, torch.where(self.message_column, next_received, next_obs)
 
+    def with_noise(self, logits: torch.Tensor) -> torch.Tensor:
+        """DIAL's noise on message logits: + ``comm_noise`` · N(0, 1) (none at 0)."""
+        if self.cfg.comm_noise == 0:
+            return logits
+        return logits + self.cfg.comm_noise * torch.randn(logits.shape, generator=self.noise_rng)
+
     def sync_target(self) -> None:
         """Move the target networks towards the online ones (soft) or copy them when due."""
         if self.cfg.target_update == 0:
+            pairs = zip(self.target_parameters, self.online_parameters, strict=True)
             with torch.no_grad():
-                for target, online in zip(
-                    self.target_parameters, self.online_parameters, strict=True
-                ):
+                for target, online in pairs:
                     target.lerp_(online, self.cfg.target_tau)
         elif self.updates % self.cfg.target_update == 0:
             self.target.load_state_dict(self.online.state_dict())
@@ -389,10 +389,7 @@ class DQNTrainer:
         return self.cfg.lr * (1.0 + self.progress() * (self.cfg.lr_end_factor - 1.0))
 
     def budget_spent(self) -> bool:
-        cfg = self.cfg
-        if cfg.num_episodes > 0:
-            return self.episodes >= cfg.num_episodes
-        return self.env_steps >= cfg.total_steps
+        return self.progress() >= 1.0
 
     def update_schedules(self, finished_episodes: int) -> None:
         """ε and the learning rate after a step in which ``finished_episodes`` ended."""
@@ -472,11 +469,8 @@ class DQNTrainer:
         self.log_path.write_bytes(b"")
 
     def save_models(self, folder: Path | None = None) -> list[Path]:
-        """Export both agents (TorchScript, mask inside) as ``<mode>_seed<seed>_agent_X.pt``
-        into ``folder`` (default: ``models_dir``)."""
-        folder = self.models_dir if folder is None else folder
-        folder.mkdir(parents=True, exist_ok=True)
-        return [
-            export_policy(self.online.agent(i), self.mode, folder / f"{self.name}_agent_{a}.pt")
-            for i, a in enumerate("AB")
-        ]
+        """Hook: write both agents into ``folder`` (default: ``models_dir``) and return the
+        paths. ``train`` calls it with the run's last weights (``last_weights/``, with
+        ``keep_best``) and with the weights it ends with. The learner keeps its agents in
+        memory; the programs that train write policy files (``batch.experiments.SavingTrainer``)."""
+        return []

@@ -24,7 +24,6 @@ BOTH_ON_TARGET_REWARD = 10.0
 ARRIVAL_REWARD = 2.0
 STEP_REWARD = -0.1
 REWARD_MODES = ("per_step", "arrival", "goal")  # per_step: the envs' default, not the trainer's
-MAX_TABULATED_CELLS = 4096  # padded cells; the (P, P) float32 table is then ≤ 64 MiB
 
 
 def team_rewards(on_target: np.ndarray, first_arrival: np.ndarray, reward_mode: str) -> np.ndarray:
@@ -135,19 +134,11 @@ class VectorMultiAgentEnv:
         self._patches = np.take(self._cell_values, all_cells[:, None] + patch_offsets, mode="clip")
         local_cells = all_cells % cells_per_map
         self._row_col = np.stack(np.divmod(local_cells, padded_cols), axis=-1) - pad  # (MP, 2)
-        self._distances = None  # (P, P) normalised distances, if small enough to tabulate
-        if cells_per_map <= MAX_TABULATED_CELLS:
-            local = self._row_col[:cells_per_map]
-            offsets = local[:, None, :] - local[None, :, :]
-            self._distances = (
-                np.hypot(offsets[..., 0], offsets[..., 1]) / np.hypot(rows, cols)
-            ).astype(np.float32)
         free = (self._cell_values == FREE).reshape(n_maps, cells_per_map)
         self._free_counts = free.sum(axis=1)  # (M,)
         # (M, max free) flat free cells of each map, sorted, padded with its first one
         order = np.argsort(~free, axis=1, kind="stable")[:, : self._free_counts.max()]
         self._start_cells_by_map = order + (np.arange(n_maps) * cells_per_map)[:, None]
-        self._start_cells = self._start_cells_by_map[0, : self._free_counts[0]]
         self._target_flat = np.flatnonzero(self._cell_values == TARGET)  # (M,)
 
     def _to_flat(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -159,9 +150,7 @@ class VectorMultiAgentEnv:
         if len(self.grids) == 1:
             return 0
         if rows.ndim == 0 or rows.shape[0] != self.n_envs:
-            raise ValueError(
-                f"with several maps, cells need a leading axis of {self.n_envs} copies"
-            )
+            raise ValueError(f"several maps: cells need a leading axis of {self.n_envs} copies")
         return self._copy_base.reshape((-1,) + (1,) * (rows.ndim - 1))
 
     def _check_cells(self, positions: object, name: str) -> np.ndarray:
@@ -190,18 +179,6 @@ class VectorMultiAgentEnv:
     def _rows_cols(self, flat: np.ndarray) -> np.ndarray:
         return np.take(self._row_col, flat, axis=0)  # np.take: faster than fancy indexing
 
-    @positions.setter
-    def positions(self, positions: np.ndarray) -> None:
-        """Move the agents by hand to (N, 2, 2) passable cells; the episode goes on (step
-        count and messages kept), an agent placed on the target having reached it."""
-        self._flat = self._check_cells(positions, "positions")
-        self._visited |= self._flat == self._copy_target[:, None]
-
-    @property
-    def messages(self) -> np.ndarray:
-        """Last messages sent (N, 2) float32: [:, 0] by A, [:, 1] by B."""
-        return self._messages.copy()
-
     @property
     def steps(self) -> np.ndarray:
         """Steps taken in the current episode of each copy, (N,) int64."""
@@ -218,12 +195,6 @@ class VectorMultiAgentEnv:
         row, col = self._row_col[self._target_flat[0]]
         return int(row), int(col)
 
-    @property
-    def free_cells(self) -> np.ndarray:
-        """Cells (F, 2) of value 0 (free, not the target): where ``reset`` places agents."""
-        self._single_map("free_cells")
-        return self._rows_cols(self._start_cells)
-
     def is_passable(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Bool array: inside the grid and not an obstacle (with several maps, the leading
         axis is the copy)."""
@@ -238,12 +209,6 @@ class VectorMultiAgentEnv:
         proposed = flat + np.take(self._move_offsets, actions)
         return np.where(np.take(self._passable, proposed), proposed, flat)
 
-    def next_cells(self, rows: np.ndarray, cols: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """Cells (..., 2) reached from passable ``(rows, cols)`` by ``actions`` (ints 0..4);
-        a move into a wall or an obstacle stays in place."""
-        flat = self._to_flat(rows, cols) + self._bases_for(np.asarray(rows))
-        return self._rows_cols(self._move(flat, actions))
-
     def _observe(self, flat: np.ndarray, messages: np.ndarray) -> np.ndarray:
         """Observations (n, 2, w² + 2) float32 from flat positions and sent messages (n, 2):
         the patch, the partner's message, the distance."""
@@ -251,13 +216,8 @@ class VectorMultiAgentEnv:
         obs = np.empty((flat.shape[0], 2, patch_size + 2), dtype=np.float32)
         obs[:, :, :patch_size] = np.take(self._patches, flat, axis=0)
         obs[:, :, patch_size] = messages[:, ::-1]  # each agent receives its partner's
-        if self._distances is not None:
-            if len(self.grids) > 1:  # the table is indexed by cells of one map
-                flat = flat % self._cells_per_map
-            distance = self._distances[flat[:, 0], flat[:, 1]]
-        else:
-            offset = self._row_col[flat[:, 0]] - self._row_col[flat[:, 1]]
-            distance = np.hypot(offset[:, 0], offset[:, 1]) / np.hypot(*self.grid_size)
+        offset = self._row_col[flat[:, 0]] - self._row_col[flat[:, 1]]
+        distance = np.hypot(offset[:, 0], offset[:, 1]) / np.hypot(*self.grid_size)
         obs[:, :, patch_size + 1] = distance[:, None]
         return obs
 

@@ -21,7 +21,7 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
-from batch.plumbing import write_json_atomic
+from batch.plumbing import use_reproducible_matmul, write_json_atomic
 from grid_maps import (
     ACTION_DELTAS,
     DEFAULT_MAP_SEED,
@@ -30,7 +30,6 @@ from grid_maps import (
     TARGET,
     generate_map,
 )
-from models import use_reproducible_matmul
 from rollout import EVAL_SEED, PolicyFn, evaluate_policy
 from vector_env import REWARD_MODES, VectorMultiAgentEnv
 

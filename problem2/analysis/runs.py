@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from batch.plumbing import quiet_torchscript
 from grid_maps import DEFAULT_MAP_SEED, check_grid, generate_map
-from models import OBSERVATION_DIM, _torchscript_without_deprecation_warnings
+from models import OBSERVATION_DIM
 
 PROBLEM2 = Path(__file__).resolve().parent.parent
 DEFAULT_ROOT = PROBLEM2 / "results"
@@ -60,7 +61,7 @@ def load_map(path: str | Path) -> np.ndarray:
 
 
 def load_policy(path: str | Path) -> torch.jit.ScriptModule:
-    """Load a policy written by ``models.export_policy`` (needs only ``torch.jit.load``).
+    """Load a policy written by ``batch.plumbing.export_policy`` (needs only ``torch.jit.load``).
 
     Raises FileNotFoundError if ``path`` does not exist, ValueError if it is not a
     TorchScript module."""
@@ -68,7 +69,7 @@ def load_policy(path: str | Path) -> torch.jit.ScriptModule:
     if not path.is_file():
         raise FileNotFoundError(f"no policy file at {path}")
     try:
-        with _torchscript_without_deprecation_warnings():
+        with quiet_torchscript():
             policy = torch.jit.load(str(path), map_location="cpu")
     except Exception as error:  # torch raises RuntimeError or zipfile/pickle errors
         raise ValueError(f"{path} is not a valid TorchScript policy: {error}") from error

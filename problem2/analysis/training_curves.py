@@ -15,7 +15,7 @@ import json
 from pathlib import Path
 
 from batch.experiments import MANIFEST, curves_title, plot_training_curves
-from models import use_reproducible_matmul
+from batch.plumbing import use_reproducible_matmul
 from train_config import DEFAULT_OUTPUT_DIR
 
 

@@ -1,7 +1,7 @@
 """Run a batch of training runs (modes x seeds) and install its outputs as one whole.
 
 Used by ``python train.py``. What goes where, and when a folder is refused, is ``OUTPUT_RULE``
-in ``train_config.py``; the README's table of outputs names every file. ``timing.json`` (wall
+in ``train.py``; the README's table of outputs names every file. ``timing.json`` (wall
 times) is the only output that differs between identical reruns.
 """
 
@@ -29,6 +29,7 @@ from vector_env import VectorMultiAgentEnv
 
 from batch.plumbing import (
     ProgressLine,
+    export_policy,
     remove_stale_temporaries,
     run_jobs,
     save_map,
@@ -131,6 +132,18 @@ def check_output_dir(cfg: BatchConfig) -> None:
 
 
 # ------------------------------------------------------------------------------- one run
+class SavingTrainer(DQNTrainer):
+    """The learner, writing its agents as policy files ``<mode>_seed<seed>_agent_{A,B}.pt``:
+    each network behind its mode's mask, TorchScript (:func:`~batch.plumbing.export_policy`)."""
+
+    def save_models(self, folder: Path | None = None) -> list[Path]:
+        folder = self.models_dir if folder is None else folder
+        return [
+            export_policy(self.online.agent(i), self.mode, folder / f"{self.name}_agent_{a}.pt")
+            for i, a in enumerate("AB")
+        ]
+
+
 def read_csv(path: Path) -> list[dict[str, float]]:
     with open(path, newline="", encoding="utf-8") as handle:
         return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(handle)]
@@ -142,7 +155,7 @@ def train_one(
     seed: int,
     models_dir: Path,
     logs_dir: Path,
-    trainer_class: type[DQNTrainer] = DQNTrainer,
+    trainer_class: type[DQNTrainer] = SavingTrainer,
     progress: Any = None,
 ) -> dict[str, Any]:
     """Train one (mode, seed) into ``models_dir`` / ``logs_dir``, run its selection evaluation
@@ -183,7 +196,7 @@ def train_one(
 
 # ------------------------------------------------------------------------------ the batch
 def run_experiments(
-    cfg: BatchConfig, trainer_class: type[DQNTrainer] = DQNTrainer
+    cfg: BatchConfig, trainer_class: type[DQNTrainer] = SavingTrainer
 ) -> list[dict[str, Any]]:
     """Train every (mode, seed) of ``cfg`` in ``cfg.workers`` processes into a staging
     folder, then install it into ``cfg.output_dir`` (whole or not at all). Each run is a

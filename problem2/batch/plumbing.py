@@ -1,16 +1,15 @@
-"""Batch plumbing for problem 2: atomic file writes (under a temporary name in the target
-folder, then ``os.replace`` onto the real name, so an interrupted run never leaves a
-half-written result), stale temporaries, worker processes, the progress line, a console
-that cannot show every character, and the command line of ``python train.py``: one flag per
-:class:`~settings.BatchConfig` field (both spellings, the field's help and default; list
-flags take ``--seeds 641 642`` or ``--seeds 641,642``), values checked before any work, and the
-flags that left the core refused with a message naming the command that now owns them."""
+"""Batch plumbing for problem 2: what a program does first (a console that cannot show
+every character, reproducible matrix products), atomic file writes (under a temporary name in
+the target folder, then ``os.replace`` onto the real name, so an interrupted run never leaves
+a half-written result), stale temporaries, worker processes, the progress line, and the
+policy files: a network behind its observation mask as TorchScript, the same weights giving
+the same bytes anywhere."""
 
 from __future__ import annotations
 
-import argparse
 import contextlib
-import dataclasses
+import hashlib
+import io
 import json
 import multiprocessing as mp
 import os
@@ -20,14 +19,18 @@ import signal
 import sys
 import threading
 import time
+import warnings
+import zipfile
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
+import torch
 from grid_maps import check_grid
-from settings import BatchConfig, SettingError, validated
+from models import MaskedPolicy, MessagingQNetwork, exportable_copy, observation_mask
+from torch import nn
 
 
 def make_console_safe() -> None:
@@ -35,6 +38,15 @@ def make_console_safe() -> None:
     for stream in (sys.stdout, sys.stderr):
         if hasattr(stream, "reconfigure"):
             stream.reconfigure(errors="replace")
+
+
+def use_reproducible_matmul() -> None:
+    """Make matrix products take MKL's AVX2 code path on every x86 CPU with AVX2 (Intel or
+    AMD, AVX-512 or not; MKL's conditional numerical reproducibility), so a seed trains the
+    same bytes on any of them. Every entry point calls it first: it takes effect at the
+    process's first matrix product, and worker processes inherit it. A value set by the user
+    is kept."""
+    os.environ.setdefault("MKL_CBWR", "AVX2")
 
 
 @contextmanager
@@ -230,142 +242,65 @@ class ProgressLine:
             self.stream.flush()
 
 
-# ------------------------------------------------ the command line of python train.py
-MAP_POOL_COMMAND = "python -m studies.map_pool_study"
-MOVED_FLAGS = {  # flag -> where it lives now
-    "map_pool": MAP_POOL_COMMAND,
-    "validation_maps": MAP_POOL_COMMAND,
-    "share_weights": MAP_POOL_COMMAND,
-    "coverage_bonus": MAP_POOL_COMMAND,
-    "on_target_bonus": MAP_POOL_COMMAND,
-    "prioritized": "no command: prioritised replay was retired from training "
-    "(replay_buffer.PrioritizedReplayBuffer remains, for the course interface)",
-    "dueling": "no command: the dueling head was retired from training "
-    "(models.DuelingDQN remains, for the course interface)",
-}
+# ------------------------------------------------ policy files (TorchScript, byte-stable)
+@contextmanager
+def quiet_torchscript() -> Iterator[None]:
+    """torch 2.13 marks ``torch.jit`` deprecated, but the course requires TorchScript files
+    that load with ``torch.jit.load`` alone, so the warning is expected here."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", r"`torch\.jit\.\w+` is deprecated", DeprecationWarning)
+        yield
 
 
-class MovedFlag(argparse.Action):
-    """A flag that ``train.py`` no longer takes: a usage error saying where it went."""
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, nargs="?", **kwargs)
-
-    def __call__(self, parser, namespace, values, option_string=None) -> None:  # noqa: ANN001
-        owner = MOVED_FLAGS[self.dest]
-        parser.error(f"{option_string} is not a train.py flag any more; it belongs to {owner}")
-
-
-OUTPUT_RULE = """\
-Outputs (in --output_dir): agent_models/ (TorchScript pairs, manifest.json, map.json,
-hyperparameters.json) and training_logs/ (one CSV per run, <run>_selection.json, curves,
-timing.json).
-
-A batch is written into a hidden staging folder inside --output_dir and moved into place
-only when every run has finished, so the folder holds one whole batch or the previous one.
-Into a folder that holds a batch with other settings (or model files without a manifest)
-training refuses unless --overwrite is given; a re-run with identical settings replaces
-it. Settings other than the defaults never go into the default folder without --overwrite
-(choose another --output_dir). Interrupted with Ctrl-C, the batch leaves the evaluation
-rows it measured in <output_dir>/interrupted/training_logs/ and the results untouched.
-Stale temporary files of killed runs are removed at the next start."""
+def export_policy(
+    network: MessagingQNetwork,
+    mask: str | Sequence[float] | np.ndarray | torch.Tensor,
+    path: str | Path,
+) -> Path:
+    """Script ``network`` behind ``mask`` (an ablation name, for any input_dim, or input_dim
+    numbers) and save it atomically with ``torch.jit.save``. ``network`` itself is left
+    untouched (a CPU copy in eval mode is exported). Returns the path written."""
+    input_dim = network.hidden.in_features
+    if isinstance(mask, str):
+        mask = observation_mask(mask, input_dim)
+    elif isinstance(mask, torch.Tensor):
+        mask = mask.detach().cpu().numpy()
+    mask_tensor = torch.from_numpy(np.array(mask, dtype=np.float32)).flatten()  # a copy
+    if mask_tensor.numel() != input_dim:
+        raise ValueError(f"mask has {mask_tensor.numel()} elements; the network takes {input_dim}")
+    return save_scripted(MaskedPolicy(exportable_copy(network), mask_tensor), path)
 
 
-def usage(error: SettingError) -> str:
-    """The usage error, a line per problem: ``argument --name: problem, got value``."""
-    return "\n".join(
-        f"argument --{name}: {problem}, got {shown_value(value)}"
-        for name, problem, value in error.problems
-    )
+def save_scripted(module: nn.Module, path: str | Path) -> Path:
+    """Script ``module`` and save it atomically, the same weights giving the same bytes
+    anywhere (:func:`without_debug_sources`). Returns the path written."""
+    # Saving to memory first keeps the archive's inner folder name fixed ("archive", not the
+    # temporary file's name), so the same weights always give byte-identical files.
+    buffer = io.BytesIO()
+    with quiet_torchscript():
+        torch.jit.save(torch.jit.script(module), buffer)
+    with temporary_path_for(path) as temporary:
+        temporary.write_bytes(without_debug_sources(buffer.getvalue()))
+    return Path(path)
 
 
-def shown_value(value: Any) -> str:
-    """A value as typed on the command line (a list space-separated, a string quoted)."""
-    if isinstance(value, list):
-        return " ".join(str(v) for v in value)
-    return repr(value) if isinstance(value, str) else str(value)
-
-
-def build_parser(cls: type = BatchConfig) -> argparse.ArgumentParser:
-    """One flag per dataclass field, in both spellings, with the field's help and default."""
-    parser = argparse.ArgumentParser(
-        description="Train the two agents (Problem 2).",
-        epilog=OUTPUT_RULE,
-        formatter_class=argparse.RawDescriptionHelpFormatter,  # the epilog's paragraphs kept
-    )
-    for spec in dataclasses.fields(cls):
-        factory = spec.default_factory
-        default = spec.default if factory is dataclasses.MISSING else factory()
-        names = list(dict.fromkeys([f"--{spec.name}", f"--{spec.name.replace('_', '-')}"]))
-        options: dict[str, Any] = {"dest": spec.name, "default": default}
-        # The output folder's default is an absolute path of this machine: its help names it.
-        shown_default = "" if spec.name == "output_dir" else " (default: %(default)s)"
-        options["help"] = spec.metadata["help"] + shown_default
-        if isinstance(default, bool):
-            options["action"] = argparse.BooleanOptionalAction
-        elif spec.metadata["items"]:
-            item_type, options["metavar"] = spec.metadata["items"]
-            options |= {"nargs": "+", "action": ListAction, "item_type": item_type}
-        else:
-            options["type"] = type(default)
-        parser.add_argument(*names, **options)
-    fields = {spec.name for spec in dataclasses.fields(cls)}
-    for name in (name for name in MOVED_FLAGS if name not in fields):  # a subclass may own it
-        spellings = {name, name.replace("_", "-")}
-        flags = [f"--{s}" for s in sorted(spellings)] + [f"--no-{s}" for s in sorted(spellings)]
-        parser.add_argument(
-            *flags,
-            dest=name,
-            action=MovedFlag,
-            default=argparse.SUPPRESS,
-            help=argparse.SUPPRESS,
-        )
-    return parser
-
-
-def parse_config(
-    argv: Sequence[str] | None = None, parser: argparse.ArgumentParser | None = None
-) -> BatchConfig:
-    """Parse and validate; bad values raise :class:`SettingError` (a ValueError)."""
-    values = vars((parser or build_parser()).parse_args(argv))
-    if isinstance(values.get("mode"), list):
-        values["mode"] = ",".join(values["mode"])
-    return validated(BatchConfig(**values))
-
-
-def parse_config_or_exit(
-    argv: Sequence[str] | None = None,
-    extra_check: Callable[[BatchConfig], None] | None = None,
-) -> BatchConfig:
-    """Parse and validate as the CLI does: bad values are an argparse usage error (exit 2)
-    naming, a line each, the flag, the value and the allowed range. ``extra_check`` (e.g.
-    the output folder rule) may raise SettingError too."""
-    parser = build_parser()
-    try:
-        cfg = parse_config(argv, parser)
-        if extra_check is not None:
-            extra_check(cfg)
-    except SettingError as error:
-        parser.error(usage(error))
-    return cfg
-
-
-class ListAction(argparse.Action):
-    """A list flag: values space- or comma-separated, each converted by ``item_type``."""
-
-    def __init__(self, *args: Any, item_type: Callable[[str], Any] = str, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.item_type = item_type
-
-    def __call__(self, parser, namespace, values, option_string=None) -> None:  # noqa: ANN001
-        items = []
-        for token in values if isinstance(values, list) else [values]:
-            for part in token.split(","):
-                if not part.strip():
-                    raise argparse.ArgumentError(self, f"empty item in {token!r}")
-                try:
-                    items.append(self.item_type(part.strip()))
-                except ValueError:
-                    name = getattr(self.item_type, "__name__", "value")
-                    raise argparse.ArgumentError(self, f"invalid {name} value: {part!r}") from None
-        setattr(namespace, self.dest, items)
+def without_debug_sources(archive: bytes) -> bytes:
+    """Make a TorchScript archive depend on its content only: drop the ``*.debug_pkl``
+    entries (source maps holding this file's absolute path, which ``torch.jit.load`` does not
+    need), and replace the random per-process ``.data/serialization_id`` by 40 digits of a
+    SHA-256 of the other entries, so equal weights give byte-identical files anywhere."""
+    source = zipfile.ZipFile(io.BytesIO(archive))
+    entries = [e for e in source.infolist() if not e.filename.endswith(".debug_pkl")]
+    digest = hashlib.sha256()
+    for entry in entries:
+        if not entry.filename.endswith("serialization_id"):
+            digest.update(entry.filename.encode() + source.read(entry.filename))
+    content_id = str(int(digest.hexdigest(), 16))[:40].zfill(40).encode()
+    output = io.BytesIO()
+    with zipfile.ZipFile(output, "w", zipfile.ZIP_STORED) as stripped:
+        for entry in entries:
+            data = source.read(entry.filename)
+            stripped.writestr(
+                entry, content_id if entry.filename.endswith("serialization_id") else data
+            )
+    return output.getvalue()

@@ -54,15 +54,14 @@ from batch.plumbing import (
     make_console_safe,
     run_jobs,
     temporary_path_for,
-    usage,
+    use_reproducible_matmul,
     write_json_atomic,
 )
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
-from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED
-from settings import MODES, SettingError, available_cores, check_value, int_in, validated
+from settings import MODES, SettingError, available_cores, check_value, int_in, usage, validated
 
 from studies.pool_training import POOL_RULES, PoolConfig, PoolTrainer
 from studies.staging import (

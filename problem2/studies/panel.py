@@ -47,9 +47,14 @@ from analysis.stats import (
     mode_contrasts,
     spearman_interval,
 )
-from batch.plumbing import ProgressLine, make_console_safe, run_jobs, write_json_atomic
+from batch.plumbing import (
+    ProgressLine,
+    make_console_safe,
+    run_jobs,
+    use_reproducible_matmul,
+    write_json_atomic,
+)
 from grid_maps import DEFAULT_MAP_SEED, OBSTACLE, TARGET
-from models import use_reproducible_matmul
 from rollout import EVAL_EPSILON, EVAL_SEED
 from settings import available_cores
 

@@ -23,8 +23,7 @@ from analysis.pipeline import CONDITIONS, evaluate_experiment
 from analysis.runs import read_experiment
 from analysis.stats import seed_paired_differences, seed_statistics
 from batch.experiments import read_csv, run_experiments
-from batch.plumbing import make_console_safe, write_json_atomic
-from models import use_reproducible_matmul
+from batch.plumbing import make_console_safe, use_reproducible_matmul, write_json_atomic
 from rollout import EVAL_EPSILON
 from settings import BatchConfig
 

@@ -5,9 +5,9 @@ and memory studies use, none of them part of the assignment's recipe.
   size, validation maps, parameter sharing, the coverage and on-target bonuses).
 * :class:`PooledVectorEnv`: the vectorised environment whose copies draw a map from the pool
   at every episode start, and which can count the grid cells the agents have seen.
-* :class:`PoolTrainer`: the core :class:`~trainer.DQNTrainer` on such environments
-  (validated on other generated maps), with the bonuses added to the learning reward and,
-  with ``share_weights``, one set of weights for both agents.
+* :class:`PoolTrainer`: the core learner (:class:`~batch.experiments.SavingTrainer`) on such
+  environments (validated on other generated maps), with the bonuses added to the learning
+  reward and, with ``share_weights``, one set of weights for both agents.
 """
 
 from __future__ import annotations
@@ -17,11 +17,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import torch
 from analysis.map_sets import MAX_POOL_SIZE, training_maps, validation_maps
+from batch.experiments import SavingTrainer
 from grid_maps import FREE, OBSTACLE, OFF_GRID, TARGET, check_grid, reaches_target
 from settings import RULES, BatchConfig, boolean, int_in, number_in
 from train_config import setting
-from trainer import DQNTrainer
 from vector_env import VectorMultiAgentEnv
 
 
@@ -179,7 +180,7 @@ class PooledVectorEnv(VectorMultiAgentEnv):
         return newly_seen
 
 
-class PoolTrainer(DQNTrainer):
+class PoolTrainer(SavingTrainer):
     """The core learner on a map pool (``cfg`` a :class:`PoolConfig`), with the pool's
     shaping and optional parameter sharing."""
 
@@ -190,7 +191,9 @@ class PoolTrainer(DQNTrainer):
             raise TypeError(f"PoolTrainer trains from a PoolConfig, got {type(args).__name__}")
         super().__init__(env, args)
         if self.cfg.share_weights:  # one set of weights: B starts as a copy of A
-            self.online.load_agents([self.online.agent(0)] * 2)
+            with torch.no_grad():
+                for parameter in self.online.parameters():  # agent axis first
+                    parameter[1] = parameter[0]
             self.target.load_state_dict(self.online.state_dict())
 
     def make_vector_env(

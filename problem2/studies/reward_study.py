@@ -32,9 +32,8 @@ from analysis.evaluator import MultiAgentEvaluator
 from analysis.failures import arrivals
 from analysis.runs import Experiment, load_model_pair, read_experiment
 from analysis.stats import seed_statistics
-from batch.plumbing import write_json_atomic
+from batch.plumbing import use_reproducible_matmul, write_json_atomic
 from grid_maps import DEFAULT_MAP_SEED, TARGET, generate_map
-from models import use_reproducible_matmul
 from rollout import EVAL_EPSILON, EVAL_SEED
 from vector_env import VectorMultiAgentEnv
 

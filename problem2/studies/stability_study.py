@@ -29,8 +29,7 @@ from analysis.episodes import EvaluationSetting, model_policy, recorded_episodes
 from analysis.failures import arrivals
 from analysis.runs import load_map, load_model_pair
 from batch.experiments import read_csv
-from batch.plumbing import write_json_atomic
-from models import use_reproducible_matmul
+from batch.plumbing import use_reproducible_matmul, write_json_atomic
 from rollout import VALIDATION_SEED
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "stability"

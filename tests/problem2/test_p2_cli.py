@@ -12,13 +12,14 @@ import sys
 from pathlib import Path
 
 import pytest
-from batch.plumbing import ProgressLine, parse_config
+from batch.plumbing import ProgressLine
 from settings import RULES, BatchConfig, SettingError, validated
 from studies.pool_training import POOL_RULES, PoolConfig
 
 from tests.conftest import PROBLEM2, load_problem_module
 
 train = load_problem_module("problem2", "train")
+parse_config = train.parse_config
 
 TINY_FLAGS = (
     "--total_steps 1536 --num_envs 16 --learning_starts 512 --batch_size 32 --eval_interval 512 "

@@ -78,7 +78,7 @@ def test_reset_places_agents_on_distinct_free_cells() -> None:
     assert (env.grid[rows, cols] == 0).all()  # never an obstacle or the target
     assert (env.positions[:, 0] != env.positions[:, 1]).any(axis=1).all()
     used = {tuple(cell) for cell in env.positions.reshape(-1, 2).tolist()}
-    assert used == {tuple(cell) for cell in env.free_cells.tolist()}  # every free cell used
+    assert used == {tuple(cell) for cell in np.argwhere(env.grid == 0).tolist()}  # every free cell
 
 
 def test_generate_map_follows_the_design() -> None:

@@ -19,9 +19,9 @@ SUBFOLDERS = ("analysis", "studies", "batch")
 # The course's scripts that may reach into a subfolder: the trainer runs batches, the
 # evaluator runs the analysis.
 COURSE_ENTRY_SCRIPTS = {"train.py": {"batch"}, "evaluate.py": {"analysis", "batch"}}
-# Modules and code lines of the learner's import closure: a ceiling at today's size, so the
-# closure cannot grow unnoticed.
-LEARNER_BUDGET = (7, 1579)
+# Modules and code lines (non-blank, non-comment; docstrings count) of the learner's import
+# closure: what a student reads for the DQN in one sitting.
+LEARNER_BUDGET = (8, 1400)
 STUDY_EXTENSIONS = ("map_pool", "share_weights", "prioritized", "dueling", "coverage_bonus")
 STUDY_EXTENSIONS += ("on_target_bonus", "memory")
 

@@ -48,7 +48,7 @@ def test_the_paired_networks_run_the_agent_networks_own_forward(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """The training module has no forward math of its own: it calls AgentDQN's."""
-    paired = models.PairedQNetworks(11, 16, 5)
+    paired = models.PairedQNetworks(11, 16, 5, models.AgentDQN)
     x = torch.rand(2, 7, 11)
     q_values, logits = paired(x)
     for index in range(2):

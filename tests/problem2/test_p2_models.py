@@ -12,14 +12,8 @@ import numpy as np
 import pytest
 import torch
 from analysis.runs import load_policy
-from models import (
-    MASKED_INPUTS,
-    OBSERVATION_MASKS,
-    AgentDQN,
-    DuelingDQN,
-    export_policy,
-    observation_mask,
-)
+from batch.plumbing import export_policy
+from models import MASKED_INPUTS, AgentDQN, DuelingDQN, observation_mask
 
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.\\w+` is deprecated:DeprecationWarning")
 
@@ -65,7 +59,7 @@ def test_logit_method_matches_forward_and_trains_the_message_head(network_class)
 def test_observation_masks() -> None:
     ones = np.ones(11, dtype=np.float32)
     expected = {"independent": [9, 10], "comm": [10], "distance": [9], "full": []}
-    assert set(OBSERVATION_MASKS) == set(expected)
+    assert set(MASKED_INPUTS) == set(expected)
     for mode, zeroed in expected.items():
         mask = observation_mask(mode)
         assert mask.dtype == np.float32 and mask.shape == (11,)
@@ -86,7 +80,7 @@ def test_export_round_trip_applies_the_mask(tmp_path: Path, network_class, mode:
     policy = load_policy(path)
     obs = torch.rand(8, 11)
     q_values, comm = policy(obs)
-    mask = torch.from_numpy(np.array(OBSERVATION_MASKS[mode]))
+    mask = torch.from_numpy(observation_mask(mode).copy())
     expected_q, expected_comm = network(obs * mask)
     assert torch.allclose(q_values, expected_q) and torch.allclose(comm, expected_comm)
     single_q, single_comm = policy(obs[0])
@@ -144,7 +138,7 @@ def test_export_is_byte_identical_across_processes(tmp_path: Path) -> None:
     # torch writes a random serialization id per process; the export replaces it by a hash.
     script = (
         "import sys, torch; torch.manual_seed(3)\n"
-        "from models import AgentDQN, export_policy\n"
+        "from models import AgentDQN\nfrom batch.plumbing import export_policy\n"
         "export_policy(AgentDQN(), 'full', sys.argv[1])\n"
     )
     problem2 = Path(__file__).resolve().parents[2] / "problem2"
@@ -170,9 +164,9 @@ print(os.environ.get("MKL_CBWR"), digest)
 
 
 def test_reproducible_matmul_gives_the_bytes_of_mkl_cbwr_avx2_and_import_sets_nothing() -> None:
-    """A process that calls models.use_reproducible_matmul() before its first matrix product
-    computes the bytes of a process started with MKL_CBWR=AVX2, whatever the CPU's own code
-    path; importing models alone changes no environment variable."""
+    """A process that calls batch.plumbing.use_reproducible_matmul() before its first matrix
+    product computes the bytes of a process started with MKL_CBWR=AVX2, whatever the CPU's own
+    code path; importing the modules alone changes no environment variable."""
     problem2 = str(Path(__file__).resolve().parents[2] / "problem2")
     clean = {k: v for k, v in os.environ.items() if k != "MKL_CBWR"}
 
@@ -187,8 +181,8 @@ def test_reproducible_matmul_gives_the_bytes_of_mkl_cbwr_avx2_and_import_sets_no
         )
         return result.stdout.strip()
 
-    assert run("import models", clean).startswith("None ")
-    called = run("import models\nmodels.use_reproducible_matmul()", clean)
+    assert run("import models\nfrom batch import plumbing", clean).startswith("None ")
+    called = run("from batch import plumbing\nplumbing.use_reproducible_matmul()", clean)
     assert called.startswith("AVX2 ")
     assert called == run("", clean | {"MKL_CBWR": "AVX2"})
 

@@ -20,14 +20,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from batch.plumbing import temporary_path_for
-from models import (
-    MESSAGE_INDEX,
-    OBSERVATION_DIM,
-    _torchscript_without_deprecation_warnings,
-    _without_debug_sources,
-    observation_mask,
-)
+from batch.plumbing import quiet_torchscript, temporary_path_for, without_debug_sources
+from models import MESSAGE_INDEX, OBSERVATION_DIM, observation_mask
 from rollout import PolicyFn
 from torch import nn
 from torch.nn import functional as F
@@ -133,11 +127,11 @@ class RecurrentPolicy(nn.Module):
 def export_recurrent(network: RecurrentQNetwork, path: str | Path) -> Path:
     """Script ``network`` as a :class:`RecurrentPolicy` and save it atomically."""
     buffer = io.BytesIO()
-    with _torchscript_without_deprecation_warnings():
+    with quiet_torchscript():
         scripted = torch.jit.script(RecurrentPolicy(network.cpu()).eval())
         torch.jit.save(scripted, buffer)
     with temporary_path_for(path) as temporary:
-        temporary.write_bytes(_without_debug_sources(buffer.getvalue()))
+        temporary.write_bytes(without_debug_sources(buffer.getvalue()))
     return Path(path)
 
 

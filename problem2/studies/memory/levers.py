@@ -25,10 +25,15 @@ from typing import Any
 import numpy as np
 import torch
 from analysis.stats import seed_statistics
-from batch.plumbing import ProgressLine, make_console_safe, run_jobs, usage, write_json_atomic
-from models import use_reproducible_matmul
+from batch.plumbing import (
+    ProgressLine,
+    make_console_safe,
+    run_jobs,
+    use_reproducible_matmul,
+    write_json_atomic,
+)
 from multi_agent_env import MultiAgentEnv
-from settings import SettingError, available_cores, validated
+from settings import SettingError, available_cores, usage, validated
 
 from studies.memory.learner import Levers, RecurrentTrainer
 from studies.memory.study import RECIPE, RESULTS

@@ -21,8 +21,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from batch.plumbing import save_scripted
 from grid_maps import NUM_ACTIONS, check_step
-from models import MessagingQNetwork, exportable_copy, observation_mask, save_scripted
+from models import MessagingQNetwork, exportable_copy, observation_mask
 from torch import nn
 from torch.nn import functional as F
 from trainer import DQNTrainer
@@ -139,7 +140,7 @@ def export_one_step(
     network: MessagingQNetwork, mode: str, path: str | Path, keep: tuple[str, ...] = MEMORY_PARTS
 ) -> Path:
     """Script ``network`` (input 27) as a :class:`OneStepMemoryPolicy` of ``mode`` and save
-    it atomically (``models.save_scripted``: equal weights give byte-identical files)."""
+    it atomically (``batch.plumbing.save_scripted``: equal weights give byte-identical files)."""
     return save_scripted(OneStepMemoryPolicy(network, mode, keep), path)
 
 

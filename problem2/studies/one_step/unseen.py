@@ -31,9 +31,14 @@ from typing import Any
 import torch
 from analysis.runs import load_policy
 from analysis.stats import seed_statistics
-from batch.plumbing import ProgressLine, make_console_safe, run_jobs, write_json_atomic
+from batch.plumbing import (
+    ProgressLine,
+    make_console_safe,
+    run_jobs,
+    use_reproducible_matmul,
+    write_json_atomic,
+)
 from matplotlib.figure import Figure
-from models import use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
 from settings import available_cores, validated
 
