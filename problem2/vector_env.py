@@ -134,6 +134,7 @@ class VectorMultiAgentEnv:
         self._patches = np.take(self._cell_values, all_cells[:, None] + patch_offsets, mode="clip")
         local_cells = all_cells % cells_per_map
         self._row_col = np.stack(np.divmod(local_cells, padded_cols), axis=-1) - pad  # (MP, 2)
+        self._diagonal = np.hypot(rows, cols)  # the distance's normaliser
         free = (self._cell_values == FREE).reshape(n_maps, cells_per_map)
         self._free_counts = free.sum(axis=1)  # (M,)
         # (M, max free) flat free cells of each map, sorted, padded with its first one
@@ -217,7 +218,7 @@ class VectorMultiAgentEnv:
         obs[:, :, :patch_size] = np.take(self._patches, flat, axis=0)
         obs[:, :, patch_size] = messages[:, ::-1]  # each agent receives its partner's
         offset = self._row_col[flat[:, 0]] - self._row_col[flat[:, 1]]
-        distance = np.hypot(offset[:, 0], offset[:, 1]) / np.hypot(*self.grid_size)
+        distance = np.hypot(offset[:, 0], offset[:, 1]) / self._diagonal
         obs[:, :, patch_size + 1] = distance[:, None]
         return obs
 

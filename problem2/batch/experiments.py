@@ -133,15 +133,20 @@ def check_output_dir(cfg: BatchConfig) -> None:
 
 # ------------------------------------------------------------------------------- one run
 class SavingTrainer(DQNTrainer):
-    """The learner, writing its agents as policy files ``<mode>_seed<seed>_agent_{A,B}.pt``:
-    each network behind its mode's mask, TorchScript (:func:`~batch.plumbing.export_policy`)."""
+    """The learner, writing its agents as TorchScript policy files
+    ``<mode>_seed<seed>_agent_{A,B}.pt`` (a study's agents may take another form:
+    :meth:`export_agent`)."""
 
     def save_models(self, folder: Path | None = None) -> list[Path]:
         folder = self.models_dir if folder is None else folder
         return [
-            export_policy(self.online.agent(i), self.mode, folder / f"{self.name}_agent_{a}.pt")
-            for i, a in enumerate("AB")
+            self.export_agent(i, folder / f"{self.name}_agent_{a}.pt") for i, a in enumerate("AB")
         ]
+
+    def export_agent(self, index: int, path: Path) -> Path:
+        """Write agent ``index``: its network behind the mode's mask
+        (:func:`~batch.plumbing.export_policy`)."""
+        return export_policy(self.online.agent(index), self.mode, path)
 
 
 def read_csv(path: Path) -> list[dict[str, float]]:

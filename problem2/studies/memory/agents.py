@@ -15,12 +15,11 @@ h (B, H)) -> (q (B, 5), message (B, 1), h_next (B, H))``, the mode's mask inside
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import numpy as np
 import torch
-from batch.plumbing import quiet_torchscript, temporary_path_for, without_debug_sources
+from batch.plumbing import save_scripted
 from models import MESSAGE_INDEX, OBSERVATION_DIM, observation_mask
 from rollout import PolicyFn
 from torch import nn
@@ -125,14 +124,9 @@ class RecurrentPolicy(nn.Module):
 
 
 def export_recurrent(network: RecurrentQNetwork, path: str | Path) -> Path:
-    """Script ``network`` as a :class:`RecurrentPolicy` and save it atomically."""
-    buffer = io.BytesIO()
-    with quiet_torchscript():
-        scripted = torch.jit.script(RecurrentPolicy(network.cpu()).eval())
-        torch.jit.save(scripted, buffer)
-    with temporary_path_for(path) as temporary:
-        temporary.write_bytes(without_debug_sources(buffer.getvalue()))
-    return Path(path)
+    """Script ``network`` as a :class:`RecurrentPolicy` and save it atomically
+    (:func:`batch.plumbing.save_scripted`: equal weights give byte-identical files)."""
+    return save_scripted(RecurrentPolicy(network.cpu()).eval(), path)
 
 
 def memory_policy(

@@ -375,8 +375,6 @@ class RecurrentTrainer(PoolTrainer):
     def policy(self, epsilon: float = 0.0, seed: int = EVAL_SEED) -> Any:
         raise NotImplementedError("a memory agent needs its environment: use memory_policy")
 
-    def save_models(self, folder: Path | None = None) -> list[Path]:
-        """Export both agents (equal weights) by the memory contract."""
-        folder = self.models_dir if folder is None else folder
-        folder.mkdir(parents=True, exist_ok=True)
-        return [export_recurrent(self.online, folder / f"{self.name}_agent_{a}.pt") for a in "AB"]
+    def export_agent(self, index: int, path: Path) -> Path:
+        """Write agent ``index`` by the memory contract (both agents share the weights)."""
+        return export_recurrent(self.online, path)

@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from batch.experiments import SavingTrainer
 from batch.plumbing import save_scripted
 from grid_maps import NUM_ACTIONS, check_step
 from models import MessagingQNetwork, exportable_copy, observation_mask
 from torch import nn
 from torch.nn import functional as F
-from trainer import DQNTrainer
 from vector_env import VectorMultiAgentEnv
 
 MEMORY_PARTS = ("observation", "move")  # what one step of memory holds
@@ -144,7 +144,7 @@ def export_one_step(
     return save_scripted(OneStepMemoryPolicy(network, mode, keep), path)
 
 
-class OneStepMemoryTrainer(DQNTrainer):
+class OneStepMemoryTrainer(SavingTrainer):
     """The core learner on :class:`OneStepMemoryEnv`'s 27-dim inputs, with the mode's
     channels hidden in both copies of the observation (:func:`memory_mask`).
 
@@ -162,17 +162,6 @@ class OneStepMemoryTrainer(DQNTrainer):
         raw_dim = self.env.obs_window**2 + 2
         return torch.from_numpy(memory_mask(self.mode, raw_dim, self.memory_inputs))
 
-    def save_models(self, folder: Path | None = None) -> list[Path]:
-        """Export both agents as :class:`OneStepMemoryPolicy` files
-        ``<mode>_seed<seed>_agent_{A,B}.pt`` into ``folder`` (default: ``models_dir``)."""
-        folder = self.models_dir if folder is None else folder
-        folder.mkdir(parents=True, exist_ok=True)
-        return [
-            export_one_step(
-                self.online.agent(i),
-                self.mode,
-                folder / f"{self.name}_agent_{a}.pt",
-                self.memory_inputs,
-            )
-            for i, a in enumerate("AB")
-        ]
+    def export_agent(self, index: int, path: Path) -> Path:
+        """Write agent ``index`` as a :class:`OneStepMemoryPolicy`."""
+        return export_one_step(self.online.agent(index), self.mode, path, self.memory_inputs)
