@@ -180,6 +180,33 @@ class PooledVectorEnv(VectorMultiAgentEnv):
         return newly_seen
 
 
+class CurriculumEnv(PooledVectorEnv):
+    """The vectorised environment, except that a share ``start_on_target`` (0 unless set)
+    of the episodes it starts by itself begin with one agent, A or B at random, on the
+    target (a reverse curriculum, Florensa et al. 2017: the goal is first met from states
+    next to it): the other agent's start cell is drawn as usual, and that agent counts as
+    having arrived (no arrival reward for it; the cells it sees count as seen). Trainers set
+    the share on their training copies only; validation and test episodes start as the
+    task's do."""
+
+    start_on_target: float = 0.0
+
+    def _start_episodes(self, rows: np.ndarray, flat: np.ndarray | None = None) -> None:
+        super()._start_episodes(rows, flat)
+        if flat is not None or self.start_on_target <= 0 or not len(rows):
+            return
+        draws = self._rng.random((len(rows), 2))
+        target = self._copy_target[rows]
+        starts = self._flat[rows].copy()  # (n, 2)
+        chosen = (draws[:, 0] < self.start_on_target) & (starts != target[:, None]).all(axis=1)
+        if not chosen.any():
+            return
+        agent = (draws[chosen, 1] < 0.5).astype(np.int64)  # 1: B stands on the target
+        starts = starts[chosen]
+        starts[np.arange(len(starts)), agent] = target[chosen]
+        super()._start_episodes(rows[chosen], starts)
+
+
 class PoolTrainer(SavingTrainer):
     """The core learner on a map pool (``cfg`` a :class:`PoolConfig`), with the pool's
     shaping and optional parameter sharing."""

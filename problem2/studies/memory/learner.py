@@ -27,7 +27,7 @@ from rollout import EVAL_SEED, evaluate_policy
 from torch.nn import functional as F
 
 from studies.memory.agents import NUM_ACTIONS, RecurrentQNetwork, export_recurrent, memory_policy
-from studies.pool_training import PoolConfig, PooledVectorEnv, PoolTrainer
+from studies.pool_training import CurriculumEnv, PoolConfig, PoolTrainer
 
 TRANSITIONS_PER_EPISODE = 16  # a batch of batch_size transitions: batch_size // 16 episodes
 CURRICULUM_END = 0.5  # fraction of the run at which the curriculum's share reaches 0
@@ -54,30 +54,6 @@ class Levers:
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
         if self.curriculum > 1:
             raise ValueError(f"curriculum must be a share in [0, 1], got {self.curriculum!r}")
-
-
-class CurriculumEnv(PooledVectorEnv):
-    """The vectorised environment, except that a share ``start_on_target`` (0 unless set)
-    of the episodes it starts by itself begin with one agent, A or B at random, on the
-    target: the other agent's start cell is drawn as usual, and that agent counts as having
-    arrived (no arrival reward for it; the cells it sees count as seen)."""
-
-    start_on_target: float = 0.0
-
-    def _start_episodes(self, rows: np.ndarray, flat: np.ndarray | None = None) -> None:
-        super()._start_episodes(rows, flat)
-        if flat is not None or self.start_on_target <= 0 or not len(rows):
-            return
-        draws = self._rng.random((len(rows), 2))
-        target = self._copy_target[rows]
-        starts = self._flat[rows].copy()  # (n, 2)
-        chosen = (draws[:, 0] < self.start_on_target) & (starts != target[:, None]).all(axis=1)
-        if not chosen.any():
-            return
-        agent = (draws[chosen, 1] < 0.5).astype(np.int64)  # 1: B stands on the target
-        starts = starts[chosen]
-        starts[np.arange(len(starts)), agent] = target[chosen]
-        super()._start_episodes(rows[chosen], starts)
 
 
 def binary_entropy(p: torch.Tensor) -> torch.Tensor:

@@ -74,10 +74,14 @@ class OneStepMemoryEnv(VectorMultiAgentEnv):
         self._prev_raw[rows] = 0.0
         self._prev_action[rows] = -1
 
+    def augment(self, raw: np.ndarray, prev_raw: np.ndarray, prev_action: np.ndarray) -> np.ndarray:
+        """The network inputs of :func:`augment` (a subclass may condition the memory)."""
+        return augment(raw, prev_raw, prev_action)
+
     def current_observations(self) -> np.ndarray:
         """Augmented observations (N, 2, obs_dim) float32 of the current state."""
         raw = self._observe(self._flat, self._messages)
-        return augment(raw, self._prev_raw, self._prev_action)
+        return self.augment(raw, self._prev_raw, self._prev_action)
 
     def reset(self, seed: int | None = None, positions: np.ndarray | None = None) -> np.ndarray:
         self._prev_raw = np.zeros((self.n_envs, 2, self.raw_dim), dtype=np.float32)
@@ -98,8 +102,8 @@ class OneStepMemoryEnv(VectorMultiAgentEnv):
         except ValueError:
             self._prev_raw, self._prev_action = saved
             raise
-        info["final_obs"] = augment(info["final_obs"], before, actions.astype(np.int64))
-        obs = augment(raw, self._prev_raw, self._prev_action)
+        info["final_obs"] = self.augment(info["final_obs"], before, actions.astype(np.int64))
+        obs = self.augment(raw, self._prev_raw, self._prev_action)
         return obs, rewards, terminated, truncated, info
 
 
