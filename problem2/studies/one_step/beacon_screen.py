@@ -5,9 +5,8 @@
 Cells (``SCREEN``): the 2 × 2 × 2 of reverse starts (R, share 0.5), homing shaping (H,
 κ = 2) and the distance's change (D) for full agents, and the 2 × 2 of R and H for
 independent agents (D hides nothing from agents that do not see the distance: an
-independent run of a cell with D is the same cell's run without it); then, around the
-prototype's cell R + H + D: the positive-listening loss (λ = 0.1), κ = 1 and 4, shares of
-reverse starts 0.25 and 0.75 (full only), and 2 and 3 million steps (full and independent).
+independent run of a cell with D is the same cell's run without it); then the
+prototype's cell R + H + D with a positive-listening loss (λ = 0.1, full only).
 Every run is the one-step map-pool learner (``map_pool_study.RECIPE``) with its cell's
 options (:class:`~studies.one_step.beacon.BeaconConfig`) on training seeds 100–102, judged
 by its best checkpoint on the validation maps at ε = 0.05 (the held-out maps are never
@@ -50,12 +49,6 @@ FACTORIAL = ("none", "R", "H", "D", "RH", "RD", "HD", "RHD")
 # Cells beyond the factorial: (name, base cell, changes, modes).
 AROUND: tuple[tuple[str, str, dict[str, Any], tuple[str, ...]], ...] = (
     ("RHD+listening", "RHD", {"listening": 0.1}, ("full",)),
-    ("RHD kappa=1", "RHD", {"homing_potential": 1.0}, ("full",)),
-    ("RHD kappa=4", "RHD", {"homing_potential": 4.0}, ("full",)),
-    ("RHD starts=0.25", "RHD", {"reverse_starts": 0.25}, ("full",)),
-    ("RHD starts=0.75", "RHD", {"reverse_starts": 0.75}, ("full",)),
-    ("RHD 2M", "RHD", {"total_steps": 2 * MILLION}, ("full", "independent")),
-    ("RHD 3M", "RHD", {"total_steps": 3 * MILLION}, ("full", "independent")),
 )
 
 

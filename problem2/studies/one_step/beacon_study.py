@@ -1,0 +1,287 @@
+"""The screen's winner on maps never seen: do one-step agents learn to home on the beacon?
+
+    python -m studies.one_step.beacon_study      # reads beacon_screen.json, trains, tests
+
+The cell of the screen (``beacon_screen.py``) whose full agents scored best on the
+validation maps trains agents of the four modes (independent, comm, distance, full) on
+seeds 0–4 with the one-step map-pool learner and that cell's options, and each pair is
+tested from its exported files on the 40 held-out maps exactly as the one-step and GRU
+agents are (``held_out_tests.held_out_results``: success, channels replaced by another
+episode's at the same step or held constant, CIC, homing). Two comparisons for the full
+agents, both paired by seed: against the independent agents trained the same way (the
+assignment's ablation: only the mask differs), and against the independent agents of the
+screen's best independent cell (``beacon_screen.best_independent``; the recipe's are the
+one-step study's own runs, ``one_step_unseen/unseen.json``). One drawn episode of a full
+pair shows what happens once one agent stands on the target (``drawn_episode``).
+
+Outputs: ``results/studies/beacon/`` (``beacon.json``, ``beacon.png``, ``agent_models/``,
+``training_logs/``, ``timing.json``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from analysis.episodes import recorded_episodes
+from analysis.held_out import held_out_maps
+from analysis.map_sets import HELD_OUT_MAP_SEEDS
+from analysis.runs import load_policy
+from analysis.stats import seed_statistics
+from batch.plumbing import (
+    ProgressLine,
+    make_console_safe,
+    run_jobs,
+    use_reproducible_matmul,
+    write_json_atomic,
+)
+from matplotlib.figure import Figure
+from multi_agent_env import MultiAgentEnv
+from rollout import EVAL_EPSILON, EVAL_SEED
+from settings import available_cores
+from vector_env import VectorMultiAgentEnv
+
+from studies import map_pool_study
+from studies.memory import study as gru_study
+from studies.memory.agents import memory_policy
+from studies.memory.held_out_tests import CONDITIONS, beacon_homing, held_out_results
+from studies.one_step import unseen
+from studies.one_step.beacon import BeaconTrainer
+from studies.one_step.beacon_screen import SCREEN_DIR, best_independent, config
+from studies.staging import best_env_steps, best_selection, staged_output, train_into, write_timing
+
+STUDY_DIR = gru_study.RESULTS / "beacon"
+MODES = unseen.MODES
+SEEDS = unseen.SEEDS  # the reported seeds, paired with the one-step and GRU studies'
+BEST_INDEPENDENT = "best_independent"  # the label of the screen's best independent runs
+
+
+def train_and_test(
+    label: str,
+    mode: str,
+    seed: int,
+    changes: dict,
+    staging: Path,
+    smoke: dict,
+    episodes: int,
+    progress: Any = None,
+) -> dict[str, Any]:
+    """Train one (mode, seed) with ``changes`` into ``staging`` and test its exported pair on
+    the held-out maps; ``label`` names the run (its mode, or ``best_independent``)."""
+    torch.set_num_threads(1)
+    start = time.perf_counter()
+    cfg = config(mode, seed, changes, smoke)
+    env = MultiAgentEnv(grid_size=cfg.grid_shape(), max_steps=cfg.max_steps, seed=cfg.map_seed)
+    trainer = BeaconTrainer(env, cfg)
+    trainer.name = f"{label}_seed{seed}"
+    train_into(trainer, staging, progress, start)
+    trained = time.perf_counter() - start
+    agents = tuple(load_policy(trainer.models_dir / f"{trainer.name}_agent_{a}.pt") for a in "AB")
+    return {
+        "mode": label,
+        "seed": seed,
+        "selected_env_steps": best_env_steps(trainer),
+        "validation_success": best_selection(trainer),
+        **held_out_results(agents, mode, episodes, cfg.max_steps),
+        "seconds": {"training": trained, "total": time.perf_counter() - start},
+    }
+
+
+def drawn_episode(models_dir: Path, max_steps: int, episodes: int) -> dict[str, Any]:
+    """The first held-out test episode (map order, ε = 0.05, seed 0's full pair) in which one
+    agent stands on the target at least 5 steps before the pair meets: per step both agents'
+    cells, the distance in cells and the messages sent."""
+    agents = tuple(load_policy(models_dir / f"full_seed{SEEDS[0]}_agent_{a}.pt") for a in "AB")
+    for map_seed, grid in zip(HELD_OUT_MAP_SEEDS, held_out_maps(), strict=True):
+        env = VectorMultiAgentEnv(episodes, grid=grid, max_steps=max_steps)
+        policy = memory_policy(agents, env, EVAL_EPSILON, EVAL_SEED + map_seed)
+        run = recorded_episodes(env, policy, episodes, seed=EVAL_SEED)
+        positions = run.trajectories["positions"]  # (E, T + 1, 2, 2)
+        on = (positions == np.array(env.target_position)).all(axis=-1)  # (E, T + 1, 2)
+        for e in np.flatnonzero(run.successes):
+            length = int(run.lengths[e])
+            first = int(np.argmax(on[e, : length + 1].any(axis=1)))
+            if length - first >= 5:
+                cells = positions[e, : length + 1]
+                return {
+                    "map_seed": int(map_seed),
+                    "episode": int(e),
+                    "grid": grid.tolist(),
+                    "target": list(env.target_position),
+                    "first_on_target_step": first,
+                    "met_at_step": length,
+                    "positions": cells.tolist(),
+                    "distance_cells": np.hypot(*(cells[:, 0] - cells[:, 1]).T).round(3).tolist(),
+                    "messages": run.trajectories["messages"][e, :length].round(3).tolist(),
+                }
+    return {}
+
+
+def summarise(
+    runs: list[dict], winner: str, screen: dict, smoke: dict, episodes: int
+) -> dict[str, Any]:
+    """The GRU study's summary of the winner's runs, the screen's choice, and full against
+    the screen's best independent agents (paired by seed)."""
+    mine = [r for r in runs if r["mode"] in MODES]
+    cfg = config("full", 0, screen["cells"][winner]["changes"], smoke)
+    results = gru_study.summarise(
+        cfg, mine, beacon_homing(episodes, cfg.max_steps), gru_study.read_no_memory()
+    )
+    results["description"] = (
+        "one-step memory agents on the map pool trained with the listener's options of the "
+        "screen's best cell, tested on held-out maps"
+    )
+    best = best_independent(screen["cells"])
+    full = {r["seed"]: r["success"] for r in mine if r["mode"] == "full"}
+    others = {r["seed"]: r["success"] for r in runs if r["mode"] == BEST_INDEPENDENT}
+    if not others:  # the recipe's independent agents: the one-step study's own runs
+        recipe_runs = unseen.read_json(unseen.STUDY_DIR / "unseen.json")["runs"]
+        others = {s: recipe_runs[f"independent_seed{s}"]["success"] for s in full}
+    results["screen"] = {"winner": winner, "changes": screen["cells"][winner]["changes"]}
+    results["best_independent"] = {
+        "cell": best,
+        "changes": screen["cells"][best]["changes"],
+        "success": {c: seed_statistics([others[s][c] for s in full]) for c in CONDITIONS},
+        "full_minus_best_independent": {
+            c: seed_statistics([full[s][c] - others[s][c] for s in full]) for c in CONDITIONS
+        },
+    }
+    results["departures_from_the_assignment"] = map_pool_study.DEPARTURES | {
+        "memory": "the previous observation (masked like the current one) and a one-hot of "
+        "the previous move as inputs (27)",
+        "training options": "the screen's cell for learning only (studies/one_step/beacon.py)",
+    }
+    results["one_step_recipe_held_out"] = unseen.read_json(unseen.STUDY_DIR / "unseen.json")[
+        "held_out"
+    ]["modes"]
+    return results
+
+
+def plot(path: Path, results: dict) -> None:
+    """Held-out success at ε = 0.05 per mode: one step of memory with the recipe, with the
+    screen's options, GRU memory; the explorers as lines."""
+    fig = Figure(figsize=(map_pool_study.FIGURE_WIDTH, 3.2), layout="constrained")
+    ax = fig.subplots()
+    recipe = results["one_step_recipe_held_out"]
+    gru = unseen.read_json(gru_study.STUDY_DIR / "memory.json")
+    arms = [
+        ("one step, recipe", "#dd8452", {m: s["eps"] for m, s in recipe.items()}),
+        (
+            "one step, trained to listen",
+            "#55a868",
+            {m: s["eps"] for m, s in results["held_out"]["modes"].items()},
+        ),
+        (
+            "GRU",
+            "#4c72b0",
+            {} if gru is None else {m: s["eps"] for m, s in gru["held_out"]["modes"].items()},
+        ),
+    ]
+    map_pool_study.draw_success_bars(ax, list(MODES), arms)
+    ax.set_xticks(range(len(MODES)), list(MODES))
+    no_memory = gru_study.read_no_memory()
+    if no_memory:
+        map_pool_study.draw_reference_lines(ax, no_memory["held_out"]["heuristics"])
+    label = f"success on held-out maps (ε = {CONDITIONS['eps']:g})"
+    map_pool_study.save_bars(fig, ax, label, path)
+
+
+def run_study(args: argparse.Namespace) -> dict:
+    """Train and test the winner's (mode, seed) runs and, unless they are the recipe's or
+    the winner's own, the screen's best independent cell; install the outputs whole."""
+    screen = unseen.read_json(args.screen)
+    if screen is None:
+        raise SystemExit(
+            f"no screen at {args.screen.resolve()}: run "
+            "python -m studies.one_step.beacon_screen first"
+        )
+    winner, best = screen["winner"], best_independent(screen["cells"])
+    changes = screen["cells"][winner]["changes"]
+    seeds = SEEDS[: args.num_seeds]
+    with staged_output(args.output_dir) as staging:
+        jobs = [
+            (m, m, s, changes, staging, args.smoke, args.episodes) for m in MODES for s in seeds
+        ]
+        best_changes = screen["cells"][best]["changes"]
+        if best != "none" and best_changes != changes:
+            jobs += [
+                (
+                    BEST_INDEPENDENT,
+                    "independent",
+                    s,
+                    best_changes,
+                    staging,
+                    args.smoke,
+                    args.episodes,
+                )
+                for s in seeds
+            ]
+        steps = args.smoke.get(
+            "total_steps", changes.get("total_steps", unseen.map_pool_study.RECIPE["total_steps"])
+        )
+        runs = run_jobs(train_and_test, jobs, args.workers, ProgressLine(len(jobs), steps))
+        results = summarise(runs, winner, screen, args.smoke, args.episodes)
+        max_steps = config("full", 0, changes, args.smoke).max_steps
+        results["drawn_episode"] = drawn_episode(staging / "agent_models", max_steps, args.episodes)
+        write_json_atomic(staging / "beacon.json", results)
+        plot(staging / "beacon.png", results)
+        write_timing(staging / "timing.json", runs)
+    return results
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
+    add = parser.add_argument
+    add("--workers", type=int, default=available_cores(), help="processes (1..64)")
+    add("--output_dir", type=Path, default=STUDY_DIR, help="folder written")
+    add("--screen", type=Path, default=SCREEN_DIR / "beacon_screen.json", help="the screen's JSON")
+    add("--num_seeds", type=int, default=len(SEEDS), help=f"seeds per mode, 1..{len(SEEDS)}")
+    add("--total_steps", type=int, default=None, help="smoke runs only: env steps per run")
+    add("--episodes_per_map", type=int, default=None, help="smoke runs only: test episodes per map")
+    args = parser.parse_args(argv)
+    if not 1 <= args.workers <= 64:
+        parser.error(f"--workers must be in 1..64, got {args.workers}")
+    if not 1 <= args.num_seeds <= len(SEEDS):
+        parser.error(f"--num_seeds must be in 1..{len(SEEDS)}, got {args.num_seeds}")
+    smoke = {
+        k: v for k in ("total_steps", "episodes_per_map") if (v := getattr(args, k)) is not None
+    }
+    for name, value in smoke.items():
+        if value < 1:
+            parser.error(f"--{name} must be an integer >= 1, got {value}")
+    args.episodes = smoke.pop("episodes_per_map", unseen.EPISODES_PER_MAP)
+    if (
+        smoke or args.episodes_per_map is not None
+    ) and args.output_dir.resolve() == STUDY_DIR.resolve():
+        parser.error(
+            "--total_steps and --episodes_per_map are for smoke runs: give another --output_dir"
+        )
+    if "total_steps" in smoke:
+        smoke |= {"eval_interval": max(1, smoke["total_steps"] // 2), "eval_episodes": 20}
+    args.smoke = smoke
+    return args
+
+
+def main(argv: list[str] | None = None) -> dict:
+    use_reproducible_matmul()  # before the first matrix product
+    make_console_safe()
+    args = parse_args(argv)
+    start = time.perf_counter()
+    results = run_study(args)
+    print(gru_study.format_table(results))
+    b = results["best_independent"]["full_minus_best_independent"]["eps"]
+    best = results["best_independent"]
+    low, high = b["ci95"]
+    print(
+        f"full - best independent ({best['cell']}): eps {b['mean']:+.3f} [{low:+.3f}, {high:+.3f}]"
+    )
+    print(f"wrote {args.output_dir} ({time.perf_counter() - start:.0f} s)")
+    return results
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,190 @@
+"""The listener's training options (studies/one_step/beacon.py) and their screen: off, the
+learner is the one-step map-pool learner; on, each changes only what learning sees, the
+exported agent computes the distance's change itself, and the screen pairs full runs with the
+independent runs that the same options could change."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from analysis.map_sets import training_maps
+from multi_agent_env import MultiAgentEnv
+from settings import SettingError
+from studies.one_step import beacon_screen
+from studies.one_step.beacon import (
+    BeaconConfig,
+    BeaconTrainer,
+    DistanceChangeEnv,
+    RememberedEnv,
+)
+from studies.one_step.unseen import PooledOneStepTrainer, recipe
+
+pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.\\w+` is deprecated:DeprecationWarning")
+
+RAW = [*range(9), 25, 26]  # the current raw observation inside the 27 inputs
+REMEMBERED_DISTANCE = 19  # the previous copy's distance (9 + 10)
+SMALL = dict(map_pool=20, validation_maps=4, num_envs=8, seed=0)
+
+
+def config(tmp_path: Path, mode: str = "full", **options) -> BeaconConfig:
+    fields = beacon_screen.map_pool_study.RECIPE | {"seeds": [], "workers": 1} | SMALL
+    cfg = beacon_screen.validated(
+        BeaconConfig(**fields | options, mode=mode), beacon_screen.BEACON_RULES
+    )
+    cfg.output_dir = str(tmp_path)
+    return cfg
+
+
+def collected(trainer, steps: int = 30) -> None:
+    """``steps`` collection steps into the trainer's replay."""
+    for _ in range(steps):
+        trainer.collect(trainer.rollout)
+
+
+def test_options_off_is_the_one_step_learner_step_for_step(tmp_path: Path) -> None:
+    plain_cfg = recipe(mode="full", **SMALL)
+    plain_cfg.output_dir = str(tmp_path / "plain")
+    plain = PooledOneStepTrainer(MultiAgentEnv(seed=641), plain_cfg)
+    options = BeaconTrainer(MultiAgentEnv(seed=641), config(tmp_path / "beacon"))
+    for trainer in (plain, options):
+        collected(trainer)
+        trainer.update_networks(32)
+    np.testing.assert_array_equal(plain.rollout.obs, options.rollout.obs)
+    for p, q in zip(plain.online.parameters(), options.online.parameters(), strict=True):
+        torch.testing.assert_close(p, q, rtol=0, atol=0)
+
+
+def test_reverse_starts_put_one_agent_on_the_target_in_training_copies_only() -> None:
+    env = RememberedEnv(400, map_pool=training_maps(20, (10, 10)), seed=1, max_steps=3)
+    env.start_on_target = 0.5
+    env.reset(seed=2)
+    on = (env.positions == env.target_positions[:, None]).all(-1)  # (N, 2)
+    assert 0.4 < (on.sum(1) == 1).mean() < 0.6 and not (on.sum(1) == 2).any()
+    trainer = BeaconTrainer(MultiAgentEnv(seed=641), config(Path("."), reverse_starts=1.0))
+    assert trainer.rollout.env.start_on_target == 1.0
+    assert trainer.make_vector_env(8, 0, validation=True).start_on_target == 0.0
+
+
+def test_homing_shaping_is_gamma_phi_next_minus_phi(tmp_path: Path) -> None:
+    trainer = BeaconTrainer(MultiAgentEnv(seed=641), config(tmp_path, homing_potential=2.0))
+    obs = np.zeros((3, 2, 27), np.float32)
+    obs[:, :, -1] = 0.5  # distance
+    obs[0, 0, 4] = 2  # copy 0: A on the target; copy 1: none; copy 2: both
+    obs[2, :, 4] = 2
+    after = obs.copy()
+    after[:, :, -1] = 0.25
+    info = {"final_obs": after, "on_target": np.zeros((3, 2), bool)}
+    base = PooledOneStepTrainer.learning_rewards(trainer, np.zeros(3), info, obs)
+    shaped = trainer.learning_rewards(np.zeros(3), info, obs)
+    gamma = trainer.cfg.gamma
+    np.testing.assert_allclose(shaped - base, [gamma * 2 * 0.75 - 2 * 0.5, 0, 0], rtol=1e-6)
+
+
+def test_distance_change_is_in_cells_and_zero_at_a_start() -> None:
+    env = DistanceChangeEnv(6, map_pool=training_maps(20, (10, 10)), seed=1, max_steps=3)
+    obs = env.reset(seed=4)
+    assert (obs[..., REMEMBERED_DISTANCE] == 0).all()
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        previous = obs[..., -1]
+        actions = rng.integers(0, 5, (6, 2))
+        obs, _, terminated, truncated, info = env.step(actions, np.zeros((6, 2)))
+        change = (info["final_obs"][..., -1] - previous) * np.hypot(10, 10)
+        np.testing.assert_allclose(info["final_obs"][..., REMEMBERED_DISTANCE], change, atol=1e-5)
+        restarted = terminated | truncated
+        assert (obs[restarted][..., REMEMBERED_DISTANCE] == 0).all()
+
+
+def test_exported_agent_computes_the_distance_change_itself(tmp_path: Path) -> None:
+    trainer = BeaconTrainer(MultiAgentEnv(seed=641), config(tmp_path, distance_change=True))
+    torch.manual_seed(1)
+    with torch.no_grad():
+        for p in trainer.online.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    agents = [torch.jit.load(str(p)) for p in trainer.save_models(tmp_path / "m")]
+    env = DistanceChangeEnv(5, map_pool=training_maps(20, (10, 10)), seed=2, max_steps=4)
+    obs, states = env.reset(seed=3), [agent.initial_state(5) for agent in agents]
+    previous, rng = torch.full((5, 2), -1), np.random.default_rng(2)
+    for _ in range(10):  # through auto-resets
+        starting = torch.from_numpy(env.steps == 0)
+        with torch.no_grad():
+            q_train, _ = trainer.online(torch.from_numpy(obs).transpose(0, 1) * trainer.mask)
+            raw = torch.from_numpy(obs[..., RAW])
+            for i, agent in enumerate(agents):
+                h = torch.where(starting[:, None], agent.initial_state(5), states[i])
+                prev = torch.where(starting, -1, previous[:, i])
+                q, _, states[i] = agent(raw[:, i], prev, h)
+                torch.testing.assert_close(q, q_train[i], rtol=1e-5, atol=1e-5)
+        actions = rng.integers(0, 5, (5, 2))
+        previous = torch.from_numpy(actions)
+        obs, *_ = env.step(actions, rng.random((5, 2)))
+
+
+def test_listening_loss_rewards_a_policy_that_depends_on_the_message(tmp_path: Path) -> None:
+    trainer = BeaconTrainer(MultiAgentEnv(seed=641), config(tmp_path, listening=0.5))
+    collected(trainer, 20)
+    batch = trainer.sample(64)
+    noise = trainer.noise_rng.get_state()  # DIAL's noise: the same draws for both losses
+    loss, *_ = trainer.td_loss(batch)
+    trainer.noise_rng.set_state(noise)
+    plain, *_ = PooledOneStepTrainer.td_loss(trainer, batch)
+    obs = batch.obs * trainer.mask
+    unheard = obs.clone()
+    unheard[..., -2] = obs[..., -2].mean(dim=1, keepdim=True)
+    with torch.no_grad():
+        p, q = (trainer.online(x)[0].softmax(-1) for x in (obs, unheard))
+    expected = plain - 0.5 * (p - q).abs().sum(-1).mean(1).sum()
+    torch.testing.assert_close(loss, expected)
+    independent = BeaconTrainer(
+        MultiAgentEnv(seed=641), config(tmp_path, mode="independent", listening=0.5)
+    )
+    collected(independent, 20)
+    batch = independent.sample(64)
+    torch.testing.assert_close(
+        independent.td_loss(batch)[0], PooledOneStepTrainer.td_loss(independent, batch)[0]
+    )
+
+
+@pytest.mark.parametrize(
+    "option, value, message",
+    [
+        ("reverse_starts", 1.5, "reverse_starts"),
+        ("homing_potential", -1.0, "homing_potential"),
+        ("listening", float("nan"), "listening"),
+        ("distance_change", 1, "distance_change"),
+    ],
+)
+def test_bad_options_are_refused_by_name(option: str, value, message: str) -> None:
+    with pytest.raises(SettingError, match=message):
+        config(Path("."), **{option: value})
+
+
+def test_screen_pairs_full_with_the_independent_runs_of_the_same_changes() -> None:
+    cells = beacon_screen.screen_cells()
+    assert cells["RHD"]["changes"] == {
+        "reverse_starts": 0.5,
+        "homing_potential": 2.0,
+        "distance_change": True,
+    }
+    assert cells["RHD"]["modes"] == ["full"] and cells["RH"]["modes"] == ["full", "independent"]
+    assert beacon_screen.independent_twin("RHD", cells) == "RH"
+    assert beacon_screen.independent_twin("D", cells) == "none"
+    assert beacon_screen.independent_twin("RHD+listening", cells) is None
+    runs = []
+    for cell, spec in cells.items():
+        for mode in spec["modes"]:
+            for seed in beacon_screen.TRAINING_SEEDS:
+                score = 0.5 if (cell, mode) == ("HD", "full") else 0.3
+                score += 0.2 if (cell, mode) == ("R", "independent") else 0.0
+                rates = {"eps": score, "greedy": score}
+                runs.append(
+                    {"cell": cell, "mode": mode, "seed": seed, "best": rates, "last": rates}
+                    | {"best_env_steps": 1, "seconds": 1.0}
+                )
+    summary = beacon_screen.summarise(runs, cells)
+    assert summary["winner"] == "HD"
+    assert summary["cells"]["HD"]["full_minus_independent_eps"]["mean"] == pytest.approx(0.2)
+    assert beacon_screen.best_independent(summary["cells"]) == "R"
