@@ -119,8 +119,9 @@ p2-one-step-levers: $(RUNTIME_STAMP)
 p2-memory-why: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.one_step.why --train
 
-## The written report, built from the result files (seconds). Your name on the cover:
-##   make report NAME="Full Name" EMAIL="you@usc.edu"   (only values given on this command line)
+## The written report, built from the result files (seconds). The cover's name and email are
+## the README's "Full name" and "USC email" fields, read by every build; this fills them once:
+##   make report NAME="Full Name" EMAIL="you@usc.edu"   (values given on this command line only)
 REPORT_ARGS = $(if $(filter command line,$(origin NAME)),--name "$(NAME)") \
 	$(if $(filter command line,$(origin EMAIL)),--email "$(EMAIL)")
 report: $(REPORT_STAMP)

@@ -40,6 +40,7 @@ def open_layout(size: int, seed: int = 0) -> list[str]:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
+        allow_abbrev=False,
         description=__doc__,
         formatter_class=type(
             "Formatter",

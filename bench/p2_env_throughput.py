@@ -61,7 +61,7 @@ def vector_env_rate(n_envs: int, seconds: float) -> tuple[float, float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=1.0, help="time per row")
     args = parser.parse_args()
     rows = [("MultiAgentEnv loop", 1, *single_env_rate(args.seconds))]

@@ -118,7 +118,7 @@ def end_to_end(repo: Path) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("--repo", action="append", type=Path, help="checkout (repeatable)")
     parser.add_argument("--repeats", type=int, default=3, help="fresh processes per checkout")
     parser.add_argument("--updates", type=int, default=500, help="timed updates per mode")

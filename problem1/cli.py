@@ -4,10 +4,29 @@ before any work starts (a bad value is an argparse usage error naming the flag).
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
+import sys
 from pathlib import Path
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
+REQUIRED = ("numpy", "matplotlib")
+
+
+def require_packages(names: tuple[str, ...] = REQUIRED) -> None:
+    """Exit (status 1) naming the missing packages and the fix: the scripts import this module
+    first (standard library only), so a run outside the project's virtual environment gets
+    this line instead of a bare ``No module named 'numpy'``."""
+    missing = [name for name in names if importlib.util.find_spec(name) is None]
+    if missing:
+        sys.exit(
+            f"{', '.join(missing)} not found by {sys.executable}: activate the project's "
+            "virtual environment first (source .venv/bin/activate; Windows: "
+            ".venv\\Scripts\\activate) or run make from the repository root (it creates .venv)"
+        )
+
+
+require_packages()
 
 
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
@@ -15,7 +34,9 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescript
 
 
 def new_parser(description: str) -> argparse.ArgumentParser:
-    return argparse.ArgumentParser(description=description, formatter_class=HelpFormatter)
+    return argparse.ArgumentParser(
+        allow_abbrev=False, description=description, formatter_class=HelpFormatter
+    )
 
 
 def _number(text: str) -> float:

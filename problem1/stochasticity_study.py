@@ -14,6 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import cli  # noqa: F401  (first: checks the packages, standard library only)
 import numpy as np
 from cli import add_solver_arguments, new_parser
 from environment import GridWorldEnv

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import cli  # noqa: F401  (first: checks the packages, standard library only)
 import numpy as np
 from cli import add_solver_arguments, int_at_least, new_parser
 from environment import GridWorldEnv

@@ -16,6 +16,7 @@ import argparse
 from collections.abc import Iterable
 from pathlib import Path
 
+import cli  # noqa: F401  (first: checks the packages, standard library only)
 import numpy as np
 from cli import RESULTS_DIR, add_results_dir_argument, new_parser
 from environment import ACTION_NAMES, MOVES, GridWorldEnv

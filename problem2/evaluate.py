@@ -31,6 +31,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+import batch.venv_check  # noqa: F401  (first: checks the packages, stdlib only)
 import torch
 from analysis.evaluator import MultiAgentEvaluator
 from analysis.outputs import write_outputs
@@ -73,6 +74,7 @@ def load_trained_models(
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
+        allow_abbrev=False,
         description=__doc__.split("\n\n")[0],
         epilog="Relative paths are resolved against the current folder.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,

@@ -309,6 +309,8 @@ def cross_field_problems(cfg: TrainConfig, invalid: Collection[str] = ()) -> lis
         if readable(name, "batch_size") and getattr(cfg, name) < cfg.batch_size:
             problem = f"must be at least batch_size {cfg.batch_size}"
             problems.append((name, problem, getattr(cfg, name)))
+    if isinstance(cfg, BatchConfig) and readable(*BUDGET_FIELDS):
+        problems += budget_problems(cfg)
     if isinstance(cfg, BatchConfig) and readable("grid_size", "map_seed"):
         try:
             generate_map(cfg.grid_shape(), cfg.map_seed)
@@ -316,6 +318,33 @@ def cross_field_problems(cfg: TrainConfig, invalid: Collection[str] = ()) -> lis
             problem = f"gives no usable map on this grid ({error})"
             problems.append(("map_seed", problem, cfg.map_seed))
     return problems
+
+
+BUDGET_FIELDS = ("total_steps", "num_episodes", "num_envs", "learning_starts", "max_steps")
+
+
+def budget_problems(cfg: BatchConfig) -> list[Problem]:
+    """A budget that ends before the first gradient update (``learning_starts`` env steps)
+    trains nothing: the run would report an untrained agent. With ``num_episodes`` the most
+    env steps a run can take is ``num_envs`` x ``max_steps`` per ``num_envs`` episodes."""
+    first_update = f"learning_starts {cfg.learning_starts} (env steps before the first update)"
+    if cfg.num_episodes == 0 and cfg.total_steps < cfg.learning_starts:
+        problem = (
+            f"must be at least {first_update}, or the run makes no update: raise "
+            "--total_steps or lower --learning_starts"
+        )
+        return [("total_steps", problem, cfg.total_steps)]
+    rounds = -(-cfg.num_episodes // cfg.num_envs)  # every copy ends an episode per round
+    most_steps = rounds * cfg.num_envs * cfg.max_steps
+    if cfg.num_episodes > 0 and most_steps < cfg.learning_starts:
+        needed = (-(-cfg.learning_starts // (cfg.num_envs * cfg.max_steps)) - 1) * cfg.num_envs
+        problem = (
+            f"ends within {most_steps} env steps ({cfg.num_envs} environments, episodes of at "
+            f"most {cfg.max_steps} steps), before {first_update}, so the run makes no update: "
+            f"use at least {needed + 1} episodes or lower --learning_starts"
+        )
+        return [("num_episodes", problem, cfg.num_episodes)]
+    return []
 
 
 def check_setting(name: str, value: Any) -> None:

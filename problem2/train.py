@@ -23,10 +23,12 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import batch.venv_check  # noqa: F401  (first: checks the packages, stdlib only)
 import numpy as np
 import torch
 from batch.experiments import (
     INTERRUPTED,
+    MANIFEST,
     SavingTrainer,
     check_output_dir,
     output_root,
@@ -185,14 +187,18 @@ only when every run has finished, so the folder holds one whole batch or the pre
 Into a folder that holds a batch with other settings (or model files without a manifest)
 training refuses unless --overwrite is given; a re-run with identical settings replaces
 it. Settings other than the defaults never go into the default folder without --overwrite
-(choose another --output_dir). Interrupted with Ctrl-C, the batch leaves the evaluation
-rows it measured in <output_dir>/interrupted/training_logs/ and the results untouched.
+(choose another --output_dir). A folder of other files, or one inside the code (e.g.
+analysis), is refused even with --overwrite. A replaced batch's evaluation_results/ goes
+with it (unless the new models are byte-identical): run evaluate.py again. Interrupted
+with Ctrl-C, the batch leaves the evaluation rows it measured in
+<output_dir>/interrupted/training_logs/ and the results untouched.
 Stale temporary files of killed runs are removed at the next start."""
 
 
 def build_parser(cls: type = BatchConfig) -> argparse.ArgumentParser:
     """One flag per dataclass field, in both spellings, with the field's help and default."""
     parser = argparse.ArgumentParser(
+        allow_abbrev=False,
         description="Train the two agents (Problem 2).",
         epilog=OUTPUT_RULE,
         formatter_class=argparse.RawDescriptionHelpFormatter,  # the epilog's paragraphs kept
@@ -202,8 +208,8 @@ def build_parser(cls: type = BatchConfig) -> argparse.ArgumentParser:
         default = spec.default if factory is dataclasses.MISSING else factory()
         names = list(dict.fromkeys([f"--{spec.name}", f"--{spec.name.replace('_', '-')}"]))
         options: dict[str, Any] = {"dest": spec.name, "default": default}
-        # The output folder's default is an absolute path of this machine: its help names it.
-        shown_default = "" if spec.name == "output_dir" else " (default: %(default)s)"
+        # A default that is a path of this machine or the core count: its help names it.
+        shown_default = "" if "(default:" in spec.metadata["help"] else " (default: %(default)s)"
         options["help"] = spec.metadata["help"] + shown_default
         if isinstance(default, bool):
             options["action"] = argparse.BooleanOptionalAction
@@ -281,6 +287,8 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     use_reproducible_matmul()  # before the first matrix product
     make_console_safe()
     cfg = parse_config_or_exit(argv, extra_check=check_output_dir)
+    if (output_root(cfg) / "agent_models" / MANIFEST).is_file():
+        print(f"the batch in {output_root(cfg)} is replaced when this one is complete")
     try:
         finals = run_experiments(cfg)
     except KeyboardInterrupt:

@@ -1,7 +1,12 @@
 """Typeset ``report.pdf`` from ``report/report.typ`` with Typst.
 
-    python report/build.py                                  # writes report.pdf (blank name)
-    python report/build.py --name "Ada Lovelace" --email ada@usc.edu --output my_report.pdf
+    python report/build.py                       # writes report.pdf, name from the README
+    python report/build.py --name "Ada Lovelace" --email ada@usc.edu   # fills the README too
+
+The student's name and email live in one place, the README's two course fields ("Full name",
+"USC email"); every build reads them there, so a later plain build keeps them. ``--name`` and
+``--email`` write the README's field first. Blank fields (the placeholder) build a blank cover
+and print one line saying how to fill them.
 
 The document reads the result files itself (``report/data.typ``); this script only does what
 Typst cannot: it compiles with the repository as Typst's root, passes the student's name and
@@ -13,6 +18,8 @@ every machine.
 from __future__ import annotations
 
 import argparse
+import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -35,6 +42,51 @@ OPTIONAL_INPUTS = {
     "one-step-unseen": "problem2/results/studies/one_step_unseen/unseen.json",
     "one-step-levers": "problem2/results/studies/one_step_unseen_levers/levers.json",
 }
+
+
+README = ROOT / "README.md"
+FIELDS = {"name": "Full name", "email": "USC email"}  # flag -> the README field's label
+PLACEHOLDER = "_<to be filled in by the student>_"
+FILL_HINT = (
+    'the cover\'s name and email are blank: fill in "Full name" and "USC email" at the top of '
+    'README.md, or run: make report NAME="Your Full Name" EMAIL="you@usc.edu"'
+)
+
+
+def field_pattern(label: str) -> re.Pattern[str]:
+    """The README line ``- **<label>:** <value>`` (value in group 2)."""
+    label = re.escape(label)
+    return re.compile(rf"^(- \*\*{label}:\*\*)[ \t]*(.*?)[ \t]*(\r?)$", re.MULTILINE)
+
+
+def read_identity(readme: Path | None = None) -> dict[str, str]:
+    """The student's name and email from the README's fields ("" where the placeholder or
+    nothing stands; markdown emphasis around a value is dropped)."""
+    readme = readme or README
+    text = readme.read_bytes().decode("utf-8") if readme.is_file() else ""
+    identity = {}
+    for flag, label in FIELDS.items():
+        match = field_pattern(label).search(text)
+        value = match.group(2).strip("_* \t") if match else ""
+        identity[flag] = "" if value.startswith("<") and value.endswith(">") else value
+    return identity
+
+
+def write_identity(values: dict[str, str], readme: Path | None = None) -> None:
+    """Write the given fields (flag -> value; "" restores the placeholder) into the README,
+    atomically; a README without the field is an error naming it."""
+    readme = readme or README
+    text = readme.read_bytes().decode("utf-8")
+    for flag, value in values.items():
+        pattern, shown = field_pattern(FIELDS[flag]), value or PLACEHOLDER
+        if not pattern.search(text):
+            raise ValueError(f'{readme} has no "- **{FIELDS[flag]}:**" line to fill')
+        text = pattern.sub(
+            lambda m, shown=shown: f"{m.group(1)} {shown}{m.group(3)}", text, count=1
+        )
+    temporary = readme.with_name(f".{readme.name}.tmp.{os.getpid()}")
+    temporary.write_text(text, encoding="utf-8", newline="")
+    os.replace(temporary, readme)
 
 
 def sys_inputs(name: str = "", email: str = "", root: Path = ROOT) -> dict[str, str]:
@@ -66,9 +118,13 @@ def build(output: Path, name: str = "", email: str = "", root: Path = ROOT) -> N
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--name", default="", help="your full name for the cover (default: blank)")
-    parser.add_argument("--email", default="", help="your USC email for the cover (default: blank)")
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--name", default=None, help="your full name: written into README.md, then built"
+    )
+    parser.add_argument(
+        "--email", default=None, help="your USC email: written into README.md, then built"
+    )
     parser.add_argument(
         "--output",
         type=Path,
@@ -76,20 +132,31 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="PDF to write (default: report.pdf in the repository)",
     )
     args = parser.parse_args(argv)
-    for flag in ("name", "email"):
-        if "\n" in getattr(args, flag):
+    for flag in FIELDS:
+        if "\n" in (getattr(args, flag) or ""):
             parser.error(f"--{flag} must be one line")
     return args
 
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
+    given = {
+        flag: getattr(args, flag).strip() for flag in FIELDS if getattr(args, flag) is not None
+    }
+    if given:
+        try:
+            write_identity(given)
+        except (OSError, ValueError) as error:
+            sys.exit(f"report: could not write the name and email into the README: {error}")
+    identity = read_identity()
     start = time.perf_counter()
     try:
-        build(args.output, args.name, args.email)
+        build(args.output, identity["name"], identity["email"])
     except typst.TypstError as error:
         sys.exit(f"report: Typst could not build the report:\n{error}")
     print(f"wrote {args.output} in {time.perf_counter() - start:.1f} s")
+    if not all(identity.values()):
+        print(f"report: {FILL_HINT}")
 
 
 if __name__ == "__main__":

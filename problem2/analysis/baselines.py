@@ -20,6 +20,7 @@ from collections import deque
 from functools import partial
 from pathlib import Path
 
+import batch.venv_check  # noqa: F401  (first: checks the packages, stdlib only)
 import numpy as np
 from batch.plumbing import use_reproducible_matmul, write_json_atomic
 from grid_maps import (
@@ -257,6 +258,7 @@ def int_list(text: str) -> list[int]:
 def main(argv: list[str] | None = None) -> None:
     use_reproducible_matmul()  # before the first matrix product
     parser = argparse.ArgumentParser(
+        allow_abbrev=False,
         description=__doc__.split("\n\n")[0],
         epilog="Relative paths are resolved against the current folder.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,

@@ -240,7 +240,7 @@ def resolve_checkpoint(path: Path) -> tuple[Path, str | None]:
     wrong (missing, a file, no models)."""
     path = Path(path)
     if not path.exists():
-        raise ValueError(f"--checkpoint {path}: no such folder")
+        raise ValueError(missing_folder(path))
     if not path.is_dir():
         hint = f" (did you mean {path.parent}?)" if path.suffix == ".pt" else ""
         raise ValueError(
@@ -256,6 +256,19 @@ def resolve_checkpoint(path: Path) -> tuple[Path, str | None]:
             "<mode>_seed<seed>_agent_A.pt); run train.py first"
         )
     return path, None
+
+
+def missing_folder(path: Path) -> str:
+    """The error for a ``--checkpoint`` folder that does not exist: the full path looked at,
+    and the folder meant if the path exists relative to problem2/ instead."""
+    message = f"--checkpoint {path}: no such folder {path.resolve()}"
+    if path.is_absolute():
+        return message
+    message += f" (relative paths start at the current folder, {Path.cwd().resolve()})"
+    beside = PROBLEM2 / path
+    if beside.exists():
+        message += f"; did you mean {beside}? run evaluate.py from {PROBLEM2}"
+    return message
 
 
 def model_paths(models_dir: Path, mode: str, seed: int | None = None) -> tuple[Path, Path]:

@@ -14,6 +14,7 @@ import argparse
 import json
 from pathlib import Path
 
+import batch.venv_check  # noqa: F401  (first: checks the packages, stdlib only)
 from batch.experiments import MANIFEST, curves_title, plot_training_curves
 from batch.plumbing import use_reproducible_matmul
 from train_config import DEFAULT_OUTPUT_DIR
@@ -49,7 +50,7 @@ def redraw(batch_dir: Path, identity: dict) -> Path:
 
 def main(argv: list[str] | None = None) -> list[Path]:
     use_reproducible_matmul()  # before the first matrix product
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "batch_dirs",
         nargs="*",

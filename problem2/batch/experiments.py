@@ -38,8 +38,11 @@ from batch.plumbing import (
 )
 
 PROBLEM2 = Path(__file__).resolve().parent.parent
+REPOSITORY = PROBLEM2.parent
 MANIFEST = "manifest.json"
 INTERRUPTED = "interrupted"
+EVALUATION = "evaluation_results"  # evaluate.py's outputs beside agent_models/
+BATCH_ENTRIES = ("agent_models", "training_logs", EVALUATION, INTERRUPTED)
 MODE_COLOURS = {
     "independent": "#1b9e77",
     "comm": "#d95f02",
@@ -91,16 +94,62 @@ def holds_results(root: Path) -> bool:
     )
 
 
-def check_output_dir(cfg: BatchConfig) -> None:
-    """Refuse (SettingError on output_dir) before any work when this batch would replace a
-    batch with other settings, or put non-default settings into the default folder,
-    unless ``cfg.overwrite``. A batch with identical settings is replaced."""
+def code_folder(root: Path) -> Path | None:
+    """The code folder that ``root`` is or lies in, if any: a package (``__init__.py``) or a
+    folder of the repository other than problem2 holding source files (problem1, report)."""
+    for path in (root, *root.parents):
+        if path == REPOSITORY or not path.is_relative_to(REPOSITORY):
+            return None
+        if (path / "__init__.py").is_file():
+            return path
+        in_repository = path.parent == REPOSITORY and path != PROBLEM2
+        if in_repository and (any(path.glob("*.py")) or any(path.glob("*.typ"))):
+            return path
+    return None
+
+
+def foreign_entries(root: Path) -> list[str]:
+    """The visible entries of folder ``root`` that no batch writes (the default folder also
+    holds the studies)."""
+    allowed = {*BATCH_ENTRIES, *(["studies"] if root == DEFAULT_OUTPUT_DIR.resolve() else [])}
+    if not root.is_dir():
+        return []
+    return sorted(p.name for p in root.iterdir() if p.name not in allowed and p.name[0] != ".")
+
+
+def check_folder_kind(cfg: BatchConfig) -> None:
+    """Refuse (SettingError on output_dir, naming the full path) a file, a folder inside the
+    code, or a folder of other files: a batch goes into a new, empty or batch folder."""
     root = output_root(cfg)
     if root.exists() and not root.is_dir():
-        raise SettingError("output_dir", "must be a folder, not a file", cfg.output_dir)
+        raise SettingError("output_dir", f"must be a folder, not a file ({root})", cfg.output_dir)
+    code = code_folder(root)
+    if code is not None:
+        problem = (
+            f"is inside the code ({root} lies in {code}): choose a folder for results, "
+            "e.g. --output_dir my_run from problem2/ or a folder under problem2/results/"
+        )
+        raise SettingError("output_dir", problem, cfg.output_dir)
+    others = foreign_entries(root)
+    if others:
+        shown = ", ".join(others[:5]) + (", ..." if len(others) > 5 else "")
+        problem = (
+            f"holds files that are not a training batch's ({root}: {shown}); a batch goes into "
+            "a new or empty folder or one holding a batch: choose another --output_dir"
+        )
+        raise SettingError("output_dir", problem, cfg.output_dir)
+
+
+def check_output_dir(cfg: BatchConfig) -> None:
+    """Refuse (SettingError on output_dir) before any work a folder that is not for a batch
+    (:func:`check_folder_kind`, even with ``cfg.overwrite``), and, unless ``cfg.overwrite``,
+    a folder where this batch would replace a batch with other settings, or non-default
+    settings in the default folder. A batch with identical settings is replaced."""
+    check_folder_kind(cfg)
+    root = output_root(cfg)
     if cfg.overwrite:
         return
-    remedy = "choose another --output_dir, or pass --overwrite to replace it"
+    remedy = f"choose another --output_dir, or pass --overwrite to replace the batch in {root}"
     new = batch_identity(cfg)
     manifest = root / "agent_models" / MANIFEST
     if manifest.is_file():
@@ -329,11 +378,33 @@ def is_docstring(statement: ast.stmt) -> bool:
     )
 
 
+def model_digests(models_dir: Path) -> dict[str, Any] | None:
+    """Each run's model checksums as the manifest in ``models_dir`` lists them (None: no
+    readable manifest)."""
+    try:
+        runs = json.loads((models_dir / MANIFEST).read_text(encoding="utf-8"))["runs"]
+        return {name: (run["sha256"], run.get("last_weights")) for name, run in runs.items()}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+
+
 def install(staging: Path, root: Path) -> None:
     """Move the finished batch into ``root``, replacing the previous one. agent_models/ goes
     last: its manifest marks a complete batch (readers find either the old one, none, or
-    the new one)."""
+    the new one). An evaluation of other model files (evaluation_results/) goes first, with
+    the batch it evaluated; one of byte-identical models stays."""
     replaced = root / f".replaced.{os.getpid()}"
+    old_models = model_digests(root / "agent_models")
+    stale = (root / EVALUATION).is_dir() and (
+        old_models is None or old_models != model_digests(staging / "agent_models")
+    )
+    if stale:
+        replaced.mkdir(exist_ok=True)
+        os.replace(root / EVALUATION, replaced / EVALUATION)
+        print(
+            f"removed {root / EVALUATION}: it evaluated the replaced batch; run evaluate.py "
+            f"--checkpoint {root} for this one (in problem2/results: make problem2)"
+        )
     for sub in ("training_logs", "agent_models"):
         if (root / sub).exists():
             replaced.mkdir(exist_ok=True)

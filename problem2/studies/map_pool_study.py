@@ -319,6 +319,7 @@ def format_table(results: dict) -> str:
 def build_parser() -> argparse.ArgumentParser:
     """The study's command-line flags."""
     parser = argparse.ArgumentParser(
+        allow_abbrev=False,
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )

@@ -238,6 +238,7 @@ def summarise(entries: list[dict], num_episodes: int) -> dict[str, Any]:
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
+        allow_abbrev=False,
         description=__doc__.split("\n\n")[0],
         epilog="Relative paths are resolved against the current folder.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,

@@ -95,7 +95,7 @@ def run_check(panel_dir: Path, num_episodes: int, total_steps: int) -> dict[str,
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     use_reproducible_matmul()  # before the first matrix product
     make_console_safe()
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("--panel_dir", "--panel-dir", type=Path, default=PANEL_DIR)
     parser.add_argument("--num_episodes", "--num-episodes", type=int, default=1000)
     parser.add_argument(

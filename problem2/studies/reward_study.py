@@ -261,7 +261,9 @@ def verdicts(learned: dict) -> dict:
 def build_parser() -> argparse.ArgumentParser:
     """The study's command-line flags."""
     parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+        allow_abbrev=False,
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add = parser.add_argument
     add(

@@ -142,7 +142,7 @@ def summarise_mode(logs_dir: Path, mode: str) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     use_reproducible_matmul()  # before the first matrix product
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n")[0])
     parser.add_argument("--study_dir", type=Path, default=STUDY_DIR)
     parser.add_argument("--train", action="store_true", help="train every setting first")
     args = parser.parse_args(argv)

@@ -282,7 +282,7 @@ def test_listening_and_signalling_losses_add_to_the_td_loss(tmp_path: Path) -> N
     def loss_with(levers: Levers) -> float:
         trainer.levers = levers
         trainer.noise_rng.manual_seed(0)
-        return float(trainer.td_loss(batch)[0])
+        return float(trainer.td_loss(batch)[0].detach())
 
     base = loss_with(Levers())
     assert loss_with(Levers(listening=0.5)) < base  # minus a non-negative policy change
@@ -338,10 +338,14 @@ def test_memory_cic_is_zero_for_a_deaf_receiver_and_near_0_89_bits_for_a_followe
     assert heard == pytest.approx({"K2": 0.890, "K10": 0.890}, abs=0.01)
 
 
-def test_summarise_only_rewrites_what_the_run_wrote(tmp_path: Path) -> None:
+def test_summarise_only_rewrites_what_the_run_wrote(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """Re-summarising from the runs memory.json records gives the bytes the run wrote."""
     from studies.memory import study
 
+    # A tiny run that still makes an update (one below learning_starts is refused).
+    monkeypatch.setitem(study.RECIPE, "learning_starts", 1152)
     flags = ["--total_steps", "1200", "--num_seeds", "1", "--mode", "comm", "--workers", "1"]
     flags += ["--episodes_per_map", "2", "--output_dir", str(tmp_path)]
     study.main(flags)

@@ -127,6 +127,8 @@ def test_starter_flags_and_defaults() -> None:
             "7",
             "--batch-size",
             "8",
+            "--learning-starts",
+            "8",
             "--epsilon-decay",
             "0.3",
             "--seeds",

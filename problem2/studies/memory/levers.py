@@ -113,7 +113,7 @@ def summarise(runs: list[dict]) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> dict:
     use_reproducible_matmul()  # before the first matrix product
     make_console_safe()
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     parser.add_argument("--setting", default="all", help="all, or some of " + ", ".join(SETTINGS))
     parser.add_argument("--workers", type=int, default=available_cores())
     parser.add_argument("--output_dir", "--output-dir", type=Path, default=OUTPUT_DIR)

@@ -257,7 +257,9 @@ def format_table(results: dict) -> str:
 
 def parse_args(argv: list[str] | None) -> tuple[PoolConfig, argparse.Namespace]:
     parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
+        allow_abbrev=False,
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     add = parser.add_argument
     add(

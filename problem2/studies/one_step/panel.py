@@ -261,7 +261,7 @@ def summarise(entries: list[dict], episodes: int) -> dict[str, Any]:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     add = parser.add_argument
     add("--maps", type=int_list, default=list(PANEL_MAP_SEEDS), help="map seeds, e.g. 641,4")
     add("--train", action="store_true", help="train the maps' batches first")

@@ -248,7 +248,7 @@ def run_levers(args: argparse.Namespace) -> dict:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     add = parser.add_argument
     add("--levers", action="store_true", help="run the levers on the training seeds instead")
     add("--workers", type=int, default=available_cores(), help="processes (1..64)")

@@ -289,7 +289,7 @@ def summarise(entries: list[dict], episodes: int, shown: dict) -> dict:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
     add = parser.add_argument
     add("--train", action="store_true", help="train the ablations' batches first")
     add("--num_episodes", type=int, default=1000, help="test episodes per seed (1..5000)")
