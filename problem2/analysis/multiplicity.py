@@ -17,6 +17,9 @@ and without the replacement). Holm's step-down correction then holds the family-
 rate at ``ALPHA`` within each family.
 
     cd problem2 && python -m analysis.multiplicity   # results/studies/panel/multiplicity.json
+
+It also redraws the panel's figure (``panel_effects.png``), whose filled markers are the effects
+that survive the correction.
 """
 
 from __future__ import annotations
@@ -200,6 +203,9 @@ def main(argv: list[str] | None = None) -> None:
     interventions = json.loads(INTERVENTIONS.read_text(encoding="utf-8"))
     result = multiplicity(panel, interventions)
     write_json_atomic(args.output, result)
+    from studies.panel_outputs import plot_effects  # the panel's figure marks what survives
+
+    plot_effects(PANEL.parent / "panel_effects.png", panel)
     for family in ("panel_effects", "interventions"):
         s = result[family]["summary"]
         print(
