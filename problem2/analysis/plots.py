@@ -216,12 +216,12 @@ def plot_trajectories(
                     row_axes[0].text(
                         1.0,
                         0.5,
-                        f"{label} agents hear no message:\nno message map",
+                        f"{label.split(' (')[0]} agents hear no message:\nno message map",
                         transform=row_axes[0].transAxes,
                         ha="center",
                         va="center",
                         fontsize=MIN_FONT,
-                    )
+                    ).set_in_layout(False)  # the empty row keeps the layout of the others
                     continue
                 for agent, ax in enumerate(row_axes):
                     image = draw_message_map(ax, grid, means[agent])
