@@ -10,7 +10,7 @@ REPORT_STAMP  := $(VENV)/.report-installed
 
 .PHONY: all problem1 problem2 studies beyond p2-baselines p2-main p2-studies p2-panel p2-map-pool \
 	p2-stability p2-memory p2-memory-levers p2-memory-panel p2-one-step-unseen p2-one-step-levers \
-	p2-memory-why p2-evaluate report \
+	p2-memory-why p2-evaluate p2-multiplicity report \
 	test lint \
 	bench clean
 
@@ -38,7 +38,7 @@ problem1: $(RUNTIME_STAMP)
 ## Problem 2: the baselines and the evaluation of the committed models (the main experiment
 ## and the studies; `make studies` retrains them).
 P2_STUDIES := results/studies
-problem2: p2-baselines p2-evaluate
+problem2: p2-baselines p2-evaluate p2-multiplicity
 
 p2-baselines: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m analysis.baselines
@@ -51,6 +51,11 @@ p2-main: $(RUNTIME_STAMP)
 # Every mode and seed of the main experiment and of the studies found beside it.
 p2-evaluate: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) evaluate.py
+
+# Holm's correction over the panel's effects and over the interventions (seconds; reads the
+# panel's and the evaluation's JSON, writes studies/panel/multiplicity.json).
+p2-multiplicity: $(RUNTIME_STAMP) p2-evaluate
+	cd problem2 && $(PY) -m analysis.multiplicity
 
 ## The studies of the default task: the main experiment, the reward study (both rewards,
 ## 3 modes x 10 seeds, checkpoints chosen by the trained reward's own return, and the exact

@@ -20,6 +20,7 @@ from matplotlib.animation import FuncAnimation, PillowWriter
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator, StrMethodFormatter
+from models import MASKED_INPUTS, MESSAGE_INDEX
 from rollout import EpisodeResults
 
 from analysis.failures import FAILURE_KINDS, classify_failures
@@ -207,7 +208,21 @@ def plot_trajectories(
         _draw_trajectories(fig, axes[:, :2], rows, grid, compact=messages is not None)
         if messages is not None:
             fig.get_layout_engine().set(h_pad=0.08, hspace=0.06)  # titles clear of the row above
-            for means, row_axes in zip(messages, axes[:, 2:], strict=True):
+            image = None
+            for (label, _), means, row_axes in zip(rows, messages, axes[:, 2:], strict=True):
+                if MESSAGE_INDEX in MASKED_INPUTS.get(label.split(" (")[0], ()):  # no listener
+                    for ax in row_axes:
+                        ax.set_axis_off()
+                    row_axes[0].text(
+                        1.0,
+                        0.5,
+                        f"{label.split(' (')[0]} agents hear no message:\nno message map",
+                        transform=row_axes[0].transAxes,
+                        ha="center",
+                        va="center",
+                        fontsize=MIN_FONT,
+                    ).set_in_layout(False)  # the empty row keeps the layout of the others
+                    continue
                 for agent, ax in enumerate(row_axes):
                     image = draw_message_map(ax, grid, means[agent])
                     ax.set_title(f"message sent by {'AB'[agent]}", fontsize=MIN_FONT)

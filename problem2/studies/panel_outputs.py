@@ -90,8 +90,12 @@ def contrast_text(coefficients: dict[str, float]) -> str:
 
 def plot_effects(path: Path, results: dict[str, Any]) -> None:
     """``panel_effects.png``: one panel per effect (ε = 0.05), each map's effect against the
-    map property with its 95 % interval; filled markers where the interval excludes 0, the
-    assignment's map in red; map seeds beside the filled points and the assignment's."""
+    map property with its 95 % interval; filled markers where the effect is established after
+    Holm's correction over the panel's 48 effects (``analysis.multiplicity``), the assignment's
+    map in red; map seeds beside the filled points and the assignment's."""
+    from analysis.multiplicity import panel_effects
+
+    corrected = panel_effects(results)["maps"]
     prop = results["protocol"]["property"]["name"]
     effects = list(results["protocol"]["effects"])
     maps = list(results["maps"].values())
@@ -102,6 +106,7 @@ def plot_effects(path: Path, results: dict[str, Any]) -> None:
         x = spread_positions([m[prop] for m in having])
         for position, entry in zip(x, having, strict=True):
             effect = entry["effects"]["eps"][name]
+            established = corrected[str(entry["map_seed"])][name]["rejected"]
             assignment = entry["map_seed"] == ASSIGNMENT_MAP
             colour = "#c0392b" if assignment else "#2c5d8f"
             mean, (low, high) = 100 * effect["mean"], (100 * v for v in effect["ci95"])  # points
@@ -114,9 +119,9 @@ def plot_effects(path: Path, results: dict[str, Any]) -> None:
                 color=colour,
                 elinewidth=0.9,
                 capsize=1.5,
-                mfc=colour if effect["established"] else "white",
+                mfc=colour if established else "white",
             )
-            if not (effect["established"] or assignment):
+            if not (established or assignment):
                 continue  # unlabelled points near 0 would pile up; panel.csv names them
             ax.annotate(
                 str(entry["map_seed"]),
@@ -141,7 +146,7 @@ def plot_effects(path: Path, results: dict[str, Any]) -> None:
     fig.supylabel("success difference (points, ε = 0.05)", fontsize=FONT + 1)
     handles = [
         axes[0].errorbar([], [], [], fmt="s", color="#2c5d8f", ms=4.5, label=label, mfc=face)
-        for label, face in (("interval excludes 0", "#2c5d8f"), ("interval includes 0", "white"))
+        for label, face in (("established (Holm)", "#2c5d8f"), ("not established", "white"))
     ]
     handles.append(
         axes[0].errorbar(

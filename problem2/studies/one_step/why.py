@@ -38,6 +38,7 @@ from analysis.plots import EpisodeTrace, draw_map, draw_paths, episode_trace, sa
 from analysis.stats import seed_statistics
 from batch.experiments import run_experiments
 from batch.plumbing import make_console_safe, use_reproducible_matmul, write_json_atomic
+from grid_maps import TARGET
 from matplotlib.figure import Figure
 from rollout import EVAL_SEED, run_episodes
 from settings import BatchConfig, available_cores
@@ -250,6 +251,11 @@ def plot_episodes(path: Path, episodes: dict) -> None:
         trace = EpisodeTrace(cells, np.zeros((len(cells) - 1, 2)), shown["success"])
         draw_map(ax, np.asarray(episodes["grid"]), star_size=12)
         draw_paths(ax, trace, marker_scale=0.8)
+        grid = np.asarray(episodes["grid"])
+        target_row, target_col = np.argwhere(grid == TARGET)[0]
+        ax.plot(  # the target again, above the end markers that stand on it
+            target_col, target_row, marker="*", ms=9, color="gold", mec="black", zorder=5
+        )
         outcome = "meets" if trace.success else "fails"
         ax.set_title(f"{label}: {outcome} in {trace.length} steps", fontsize=FONT + 1)
         ax.tick_params(labelsize=FONT)
