@@ -1,6 +1,7 @@
 """The screen's winner on maps never seen: do one-step agents learn to home on the beacon?
 
     python -m studies.one_step.beacon_study      # reads beacon_screen.json, trains, tests
+    python -m studies.one_step.beacon_study --plot_only   # redraw beacon.png
 
 The cell of the screen (``beacon_screen.py``) whose full agents scored best on the
 validation maps trains agents of the four modes (independent, comm, distance, full) on
@@ -169,9 +170,9 @@ def plot(path: Path, results: dict) -> None:
     recipe = results["one_step_recipe_held_out"]
     gru = unseen.read_json(gru_study.STUDY_DIR / "memory.json")
     arms = [
-        ("one step, recipe", "#dd8452", {m: s["eps"] for m, s in recipe.items()}),
+        ("recipe", "#dd8452", {m: s["eps"] for m, s in recipe.items()}),
         (
-            "one step, trained to listen",
+            "trained to listen",
             "#55a868",
             {m: s["eps"] for m, s in results["held_out"]["modes"].items()},
         ),
@@ -240,6 +241,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add("--output_dir", type=Path, default=STUDY_DIR, help="folder written")
     add("--screen", type=Path, default=SCREEN_DIR / "beacon_screen.json", help="the screen's JSON")
     add("--num_seeds", type=int, default=len(SEEDS), help=f"seeds per mode, 1..{len(SEEDS)}")
+    add("--plot_only", action="store_true", help="redraw beacon.png from beacon.json (no runs)")
     add("--total_steps", type=int, default=None, help="smoke runs only: env steps per run")
     add("--episodes_per_map", type=int, default=None, help="smoke runs only: test episodes per map")
     args = parser.parse_args(argv)
@@ -270,6 +272,13 @@ def main(argv: list[str] | None = None) -> dict:
     use_reproducible_matmul()  # before the first matrix product
     make_console_safe()
     args = parse_args(argv)
+    if args.plot_only:
+        results = unseen.read_json(args.output_dir / "beacon.json")
+        if results is None:
+            raise SystemExit(f"no beacon.json in {args.output_dir.resolve()}: run the study first")
+        plot(args.output_dir / "beacon.png", results)
+        print(f"wrote {args.output_dir / 'beacon.png'}")
+        return results
     start = time.perf_counter()
     results = run_study(args)
     print(gru_study.format_table(results))
