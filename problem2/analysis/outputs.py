@@ -37,6 +37,19 @@ from analysis.report import format_report
 CONDITIONS = ("greedy", "eps")
 
 
+def portable(data: Any) -> Any:
+    """``data`` with every float rounded to 12 significant digits. The information measures
+    go through NumPy's vectorised logarithms, whose last bit may differ between CPUs; the
+    file must have the same bytes on every machine."""
+    if isinstance(data, float):
+        return float(f"{data:.12g}")
+    if isinstance(data, dict):
+        return {key: portable(value) for key, value in data.items()}
+    if isinstance(data, list | tuple):
+        return [portable(value) for value in data]
+    return data
+
+
 def write_json(path: str | Path, data: Any) -> Path:
     """Write ``data`` as indented UTF-8 JSON (final newline) to ``path`` atomically;
     ValueError for NaN or Infinity (they are not JSON)."""
@@ -288,6 +301,7 @@ def write_outputs(results: dict[str, Any], outcomes: dict, output_dir: Path) -> 
     output_dir = Path(output_dir)
     performance = results["performance"]
     analysis, interventions, measures = split_communication(results["communication"])
+    measures = portable(measures)
     written = [
         write_json(output_dir / "performance.json", performance),
         write_json(output_dir / "communication_analysis.json", analysis),
