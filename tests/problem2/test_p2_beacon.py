@@ -188,3 +188,20 @@ def test_screen_pairs_full_with_the_independent_runs_of_the_same_changes() -> No
     assert summary["winner"] == "HD"
     assert summary["cells"]["HD"]["full_minus_independent_eps"]["mean"] == pytest.approx(0.2)
     assert beacon_screen.best_independent(summary["cells"]) == "R"
+
+
+def test_a_tiny_run_with_every_option_reproduces_its_bytes(tmp_path: Path) -> None:
+    files = []
+    for name in ("first", "second"):
+        options = dict(reverse_starts=0.5, homing_potential=2.0, distance_change=True)
+        cfg = config(tmp_path / name, listening=0.1, total_steps=2000, learning_starts=300)
+        cfg.eval_interval, cfg.eval_episodes, cfg.batch_size = 1000, 4, 32
+        for key, value in options.items():
+            setattr(cfg, key, value)
+        trainer = BeaconTrainer(MultiAgentEnv(seed=641), cfg)
+        trainer.train()
+        assert trainer.updates > 0
+        folder = tmp_path / name / "agent_models"
+        files.append({p.name: p.read_bytes() for p in sorted(folder.glob("*.pt"))})
+    assert sorted(files[0]) == ["full_seed0_agent_A.pt", "full_seed0_agent_B.pt"]
+    assert files[0] == files[1]

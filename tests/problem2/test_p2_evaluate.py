@@ -393,3 +393,11 @@ def test_waiting_steps_count_only_steps_alone_on_the_target() -> None:
     positions = np.stack([np.array(a), np.array(b)], axis=1)  # (L + 1, 2, 2)
     trace = EpisodeTrace(positions=positions, messages=np.zeros((5, 2)), success=True)
     np.testing.assert_array_equal(waiting_steps(trace, target), [2, 0])  # A waits at 2 and 3
+
+
+def test_measures_are_written_to_12_significant_digits() -> None:
+    from analysis.outputs import portable
+
+    data = {"a": [0.017300812567193416, 2], "b": {"c": 1e-17, "d": "text"}}
+    assert portable(data) == {"a": [0.0173008125672, 2], "b": {"c": 1e-17, "d": "text"}}
+    assert portable(0.23148338125870851) == portable(0.2314833812587085)
