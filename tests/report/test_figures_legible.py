@@ -107,7 +107,7 @@ def draw_evaluation(out: Path) -> None:
 def draw_studies(out: Path) -> None:
     from studies import map_pool_study
     from studies.memory import study as memory_study
-    from studies.one_step import unseen, why
+    from studies.one_step import beacon_study, unseen, why
     from studies.one_step.panel_outputs import plot_panel
     from studies.panel_outputs import plot_effects
     from studies.reward_study_outputs import plot_study
@@ -128,6 +128,8 @@ def draw_studies(out: Path) -> None:
         why.plot_episodes(out / "why.png", shown)
     if (studies / "one_step_unseen" / "unseen.json").is_file():
         unseen.plot(out / "unseen.png", read_json(studies / "one_step_unseen" / "unseen.json"))
+    if (studies / "beacon" / "beacon.json").is_file():
+        beacon_study.plot(out / "beacon.png", read_json(studies / "beacon" / "beacon.json"))
 
 
 def printed_sizes(figure: Figure, tight: bool, placed: float) -> tuple[float, int]:
