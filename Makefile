@@ -55,7 +55,7 @@ p2-evaluate: $(RUNTIME_STAMP)
 # Holm's correction over the panel's effects and over the interventions (seconds; reads the
 # panel's and the evaluation's JSON, writes studies/panel/multiplicity.json).
 p2-multiplicity: $(RUNTIME_STAMP) p2-evaluate
-	cd problem2 && $(PY) -m analysis.multiplicity
+	cd problem2 && $(PY) -m studies.multiplicity
 
 ## The studies of the default task: the main experiment, the reward study (both rewards,
 ## 3 modes x 10 seeds, checkpoints chosen by the trained reward's own return, and the exact

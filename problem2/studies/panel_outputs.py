@@ -91,9 +91,9 @@ def contrast_text(coefficients: dict[str, float]) -> str:
 def plot_effects(path: Path, results: dict[str, Any]) -> None:
     """``panel_effects.png``: one panel per effect (ε = 0.05), each map's effect against the
     map property with its 95 % interval; filled markers where the effect is established after
-    Holm's correction over the panel's 48 effects (``analysis.multiplicity``), the assignment's
+    Holm's correction over the panel's 48 effects (``studies.multiplicity``), the assignment's
     map in red; map seeds beside the filled points and the assignment's."""
-    from analysis.multiplicity import panel_effects
+    from studies.multiplicity import panel_effects
 
     corrected = panel_effects(results)["maps"]
     prop = results["protocol"]["property"]["name"]

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
-from analysis import multiplicity
+from studies import multiplicity
 
 RESULTS = Path(__file__).resolve().parents[2] / "problem2" / "results"
 

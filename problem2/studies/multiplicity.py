@@ -16,7 +16,7 @@ an intervention the per-seed changes are redrawn (the same agents on the same ep
 and without the replacement). Holm's step-down correction then holds the family-wise error
 rate at ``ALPHA`` within each family.
 
-    cd problem2 && python -m analysis.multiplicity   # results/studies/panel/multiplicity.json
+    cd problem2 && python -m studies.multiplicity   # results/studies/panel/multiplicity.json
 
 It also redraws the panel's figure (``panel_effects.png``), whose filled markers are the effects
 that survive the correction.
@@ -31,9 +31,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from batch.plumbing import write_json_atomic
-
 from analysis.interventions import channel_verdict
+from batch.plumbing import make_console_safe, use_reproducible_matmul, write_json_atomic
+
+from studies.panel_outputs import plot_effects
 
 ALPHA = 0.05
 RESAMPLES = 20_000
@@ -196,15 +197,15 @@ def multiplicity(panel: dict[str, Any], interventions: dict[str, Any]) -> dict[s
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    use_reproducible_matmul()  # an entry point's first step, as everywhere
+    make_console_safe()
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--output", type=Path, default=OUTPUT)
     args = parser.parse_args(argv)
     panel = json.loads(PANEL.read_text(encoding="utf-8"))
     interventions = json.loads(INTERVENTIONS.read_text(encoding="utf-8"))
     result = multiplicity(panel, interventions)
     write_json_atomic(args.output, result)
-    from studies.panel_outputs import plot_effects  # the panel's figure marks what survives
-
     plot_effects(PANEL.parent / "panel_effects.png", panel)
     for family in ("panel_effects", "interventions"):
         s = result[family]["summary"]
