@@ -418,8 +418,13 @@ def install(staging: Path, root: Path) -> None:
 # ------------------------------------------------------------------------------- figures
 CURVE_PANELS = (
     ("eval_success_eps", "success rate", (0.0, 1.02)),
-    ("eval_return_eps", "episode return", None),
-)  # validation episodes at ε = 0.05
+    ("eval_return_eps", "return ({reward})", None),
+)  # validation episodes at ε = 0.05; {reward}: the batch's CURVE_REWARD_NAMES entry
+CURVE_REWARD_NAMES = {  # reward_mode -> the short name the return axis carries
+    "goal": "goal reward",
+    "per_step": "assignment's reward",
+    "arrival": "arrival reward",
+}
 CURVE_REWARDS = {  # reward_mode -> the reward the curves' return sums
     "goal": "goal reward (+10 when both agents stand on the target, −0.1 on every other step)",
     "per_step": "assignment's reward (+10 both on target, +2 per step one is on it, else −0.1)",
@@ -463,6 +468,7 @@ def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], tit
             ax.plot(steps, values.mean(axis=0), color=colour, linewidth=2.0)
             if limits:
                 ax.set_ylim(*limits)
+            label = label.format(reward=CURVE_REWARD_NAMES[settings["reward_mode"]])
             ax.set_ylabel(label if column == 0 else "", fontsize=9)
             ax.grid(True, alpha=0.3)
             ax.tick_params(labelsize=8)
@@ -477,9 +483,13 @@ def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], tit
     ]
     fig.legend(handles=legend, loc="outside lower center", ncols=3, fontsize=8, frameon=False)
     reward = CURVE_REWARDS[settings["reward_mode"]]
-    unseen = ", without the arrival term (only learning sees it)"
+    unseen = ", less the arrival term added for learning"
     words = f"Validation episodes at ε = 0.05; return: the {reward} summed over an episode"
-    words += unseen if settings["target_potential"] > 0 else ""
+    words += (
+        " (the reward these agents learn from"
+        + (unseen if settings["target_potential"] > 0 else "")
+        + ")"
+    )
     fig.suptitle(f"{title}\n{textwrap.fill(words + '.', width=100)}", fontsize=9)
     with temporary_path_for(logs_dir / "training_curves.png") as temporary:
         fig.savefig(temporary, format="png", dpi=150)

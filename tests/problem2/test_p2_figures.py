@@ -14,7 +14,7 @@ from analysis import training_curves
 from analysis.baselines import POLICIES, POLICY_LABELS
 from analysis.estimate_plots import plot_measures
 from analysis.plots import message_range
-from batch.experiments import CURVE_REWARDS
+from batch.experiments import CURVE_REWARD_NAMES, CURVE_REWARDS
 from matplotlib.figure import Figure
 from studies import map_pool_study, reward_study
 from studies.memory import study as memory_study
@@ -61,7 +61,7 @@ def test_curve_redraw_refuses_a_folder_without_a_batch_or_with_a_log_missing(
 
 
 def test_every_reward_the_curves_can_sum_is_named() -> None:
-    assert set(CURVE_REWARDS) == set(REWARD_MODES)
+    assert set(CURVE_REWARDS) == set(CURVE_REWARD_NAMES) == set(REWARD_MODES)
 
 
 @pytest.mark.parametrize(
