@@ -18,13 +18,13 @@ from studies.one_step.beacon import (
     BeaconConfig,
     BeaconTrainer,
     DistanceChangeEnv,
-    RememberedEnv,
 )
-from studies.one_step.unseen import PooledOneStepTrainer, recipe
+from studies.one_step.unseen import PooledOneStepEnv, PooledOneStepTrainer, recipe
+
+from tests.problem2.test_p2_one_step import assert_exported_agents_follow_the_network
 
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.\\w+` is deprecated:DeprecationWarning")
 
-RAW = [*range(9), 25, 26]  # the current raw observation inside the 27 inputs
 REMEMBERED_DISTANCE = 19  # the previous copy's distance (9 + 10)
 SMALL = dict(map_pool=20, validation_maps=4, num_envs=8, seed=0)
 
@@ -58,7 +58,7 @@ def test_options_off_is_the_one_step_learner_step_for_step(tmp_path: Path) -> No
 
 
 def test_reverse_starts_put_one_agent_on_the_target_in_training_copies_only() -> None:
-    env = RememberedEnv(400, map_pool=training_maps(20, (10, 10)), seed=1, max_steps=3)
+    env = PooledOneStepEnv(400, map_pool=training_maps(20, (10, 10)), seed=1, max_steps=3)
     env.start_on_target = 0.5
     env.reset(seed=2)
     on = (env.positions == env.target_positions[:, None]).all(-1)  # (N, 2)
@@ -106,21 +106,7 @@ def test_exported_agent_computes_the_distance_change_itself(tmp_path: Path) -> N
             p.add_(0.3 * torch.randn_like(p))
     agents = [torch.jit.load(str(p)) for p in trainer.save_models(tmp_path / "m")]
     env = DistanceChangeEnv(5, map_pool=training_maps(20, (10, 10)), seed=2, max_steps=4)
-    obs, states = env.reset(seed=3), [agent.initial_state(5) for agent in agents]
-    previous, rng = torch.full((5, 2), -1), np.random.default_rng(2)
-    for _ in range(10):  # through auto-resets
-        starting = torch.from_numpy(env.steps == 0)
-        with torch.no_grad():
-            q_train, _ = trainer.online(torch.from_numpy(obs).transpose(0, 1) * trainer.mask)
-            raw = torch.from_numpy(obs[..., RAW])
-            for i, agent in enumerate(agents):
-                h = torch.where(starting[:, None], agent.initial_state(5), states[i])
-                prev = torch.where(starting, -1, previous[:, i])
-                q, _, states[i] = agent(raw[:, i], prev, h)
-                torch.testing.assert_close(q, q_train[i], rtol=1e-5, atol=1e-5)
-        actions = rng.integers(0, 5, (5, 2))
-        previous = torch.from_numpy(actions)
-        obs, *_ = env.step(actions, rng.random((5, 2)))
+    assert_exported_agents_follow_the_network(trainer, agents, env, tolerance=1e-5)
 
 
 def test_listening_loss_rewards_a_policy_that_depends_on_the_message(tmp_path: Path) -> None:

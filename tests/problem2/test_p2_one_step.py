@@ -124,11 +124,20 @@ def test_exported_policy_equals_the_training_network(mode: str, tmp_path: Path) 
     assert [p.name for p in paths] == [f"{mode}_seed641_agent_{a}.pt" for a in "AB"]
     agents = [torch.jit.load(str(p)) for p in paths]
     env = OneStepMemoryEnv(5, grid=trainer.env.grid, max_steps=4)
+    assert_exported_agents_follow_the_network(trainer, agents, env, tolerance=1e-6)
+
+
+def assert_exported_agents_follow_the_network(
+    trainer, agents: list, env: OneStepMemoryEnv, tolerance: float
+) -> None:
+    """Play 10 steps of ``env`` (5 copies, through its auto-resets) with random moves and
+    messages; at each step each exported agent, fed the raw observation, the move made and
+    its own state, gives the Q-values of the trainer's network on the inputs ``env`` built."""
     obs = env.reset(seed=3)
     states = [agent.initial_state(5) for agent in agents]
     previous = torch.full((5, 2), -1)
     rng = np.random.default_rng(2)
-    for _ in range(10):  # through auto-resets (every 4 steps)
+    for _ in range(10):
         starting = torch.from_numpy(env.steps == 0)
         with torch.no_grad():
             q_train, _ = trainer.online(torch.from_numpy(obs).transpose(0, 1) * trainer.mask)
@@ -138,7 +147,7 @@ def test_exported_policy_equals_the_training_network(mode: str, tmp_path: Path) 
                 prev = torch.where(starting, -1, previous[:, i])
                 q, message, states[i] = agent(raw[:, i], prev, h)
                 assert q.shape == (5, 5) and message.shape == (5, 1)
-                torch.testing.assert_close(q, q_train[i], rtol=1e-6, atol=1e-6)
+                torch.testing.assert_close(q, q_train[i], rtol=tolerance, atol=tolerance)
         actions = rng.integers(0, 5, (5, 2))  # exploration: the moves actually made
         previous = torch.from_numpy(actions)
         obs, *_ = env.step(actions, rng.random((5, 2)))

@@ -7,8 +7,9 @@ default, so the map-pool recipe is unchanged without them) target that:
 
 * ``reverse_starts`` (Florensa et al. 2017, reverse curriculum generation): this share of
   the *training* episodes starts with one agent, A or B at random, already on the target
-  (:class:`~studies.pool_training.CurriculumEnv`), so the partner's waiting on the target,
-  the state in which the distance is a beacon, is common from the first updates.
+  (:class:`~studies.pool_training.CurriculumEnv`, under ``unseen.PooledOneStepEnv``), so
+  the partner's waiting on the target, the state in which the distance is a beacon, is
+  common from the first updates.
   Validation and test episodes start as the task's do.
 * ``homing_potential`` κ (Ng et al. 1999, potential-based shaping): the learning reward
   gains γ Φ(s') − Φ(s), Φ(s) = κ (1 − d(s)) while exactly one agent stands on the target
@@ -45,9 +46,9 @@ from settings import boolean, number_in
 from torch import nn
 from train_config import setting
 
-from studies.one_step.agents import OneStepMemoryEnv, OneStepMemoryPolicy
-from studies.one_step.unseen import PooledOneStepTrainer
-from studies.pool_training import POOL_RULES, CurriculumEnv, PoolConfig
+from studies.one_step.agents import OneStepMemoryPolicy
+from studies.one_step.unseen import PooledOneStepEnv, PooledOneStepTrainer
+from studies.pool_training import POOL_RULES, PoolConfig
 
 
 @dataclass
@@ -84,7 +85,9 @@ BEACON_RULES = POOL_RULES | {
 }
 
 
-def with_distance_change(inputs: np.ndarray, raw: np.ndarray, scale: float, started: np.ndarray):
+def with_distance_change(
+    inputs: np.ndarray, raw: np.ndarray, scale: float, started: np.ndarray
+) -> np.ndarray:
     """``inputs`` (..., 2R + 5) of :func:`agents.augment` with the remembered distance
     (element 2R − 1: the last of the previous-observation copy) replaced by
     (d_t − d_{t−1}) · ``scale``; 0 where ``started`` (..., bool: the episode's first step)."""
@@ -95,17 +98,13 @@ def with_distance_change(inputs: np.ndarray, raw: np.ndarray, scale: float, star
     return inputs
 
 
-class DistanceChangeEnv(OneStepMemoryEnv, CurriculumEnv):
+class DistanceChangeEnv(PooledOneStepEnv):
     """One-step memory inputs on the map pool with the remembered distance as its change in
-    cells (:func:`with_distance_change`); a share of reverse starts when the trainer sets it."""
+    cells (:func:`with_distance_change`)."""
 
     def augment(self, raw: np.ndarray, prev_raw: np.ndarray, prev_action: np.ndarray) -> np.ndarray:
         inputs = super().augment(raw, prev_raw, prev_action)
         return with_distance_change(inputs, raw, float(self._diagonal), prev_action < 0)
-
-
-class RememberedEnv(OneStepMemoryEnv, CurriculumEnv):
-    """One-step memory inputs on the map pool, with reverse starts when the trainer sets them."""
 
 
 class DistanceChangePolicy(nn.Module):
@@ -140,7 +139,7 @@ class BeaconTrainer(PooledOneStepTrainer):
     def __init__(self, env: MultiAgentEnv, cfg: BeaconConfig) -> None:
         if not isinstance(cfg, BeaconConfig):
             raise TypeError(f"BeaconTrainer trains from a BeaconConfig, got {type(cfg).__name__}")
-        self.vector_env_class = DistanceChangeEnv if cfg.distance_change else RememberedEnv
+        self.vector_env_class = DistanceChangeEnv if cfg.distance_change else PooledOneStepEnv
         super().__init__(env, cfg)
 
     def make_vector_env(self, n_envs: int, seed: int | None, validation: bool = False) -> Any:

@@ -49,11 +49,11 @@ from vector_env import VectorMultiAgentEnv
 from studies import map_pool_study
 from studies.memory import study as gru_study
 from studies.memory.agents import memory_policy
-from studies.memory.held_out_tests import CONDITIONS, beacon_homing, held_out_results
+from studies.memory.held_out_tests import CONDITIONS, beacon_homing
 from studies.one_step import unseen
 from studies.one_step.beacon import BeaconTrainer
 from studies.one_step.beacon_screen import SCREEN_DIR, best_independent, config
-from studies.staging import best_env_steps, best_selection, staged_output, train_into, write_timing
+from studies.staging import staged_output, train_into, write_timing
 
 STUDY_DIR = gru_study.RESULTS / "beacon"
 MODES = unseen.MODES
@@ -80,16 +80,7 @@ def train_and_test(
     trainer = BeaconTrainer(env, cfg)
     trainer.name = f"{label}_seed{seed}"
     train_into(trainer, staging, progress, start)
-    trained = time.perf_counter() - start
-    agents = tuple(load_policy(trainer.models_dir / f"{trainer.name}_agent_{a}.pt") for a in "AB")
-    return {
-        "mode": label,
-        "seed": seed,
-        "selected_env_steps": best_env_steps(trainer),
-        "validation_success": best_selection(trainer),
-        **held_out_results(agents, mode, episodes, cfg.max_steps),
-        "seconds": {"training": trained, "total": time.perf_counter() - start},
-    }
+    return unseen.held_out_record(trainer, label, episodes, start, time.perf_counter() - start)
 
 
 def drawn_episode(models_dir: Path, max_steps: int, episodes: int) -> dict[str, Any]:
@@ -139,9 +130,9 @@ def summarise(
     best = best_independent(screen["cells"])
     full = {r["seed"]: r["success"] for r in mine if r["mode"] == "full"}
     others = {r["seed"]: r["success"] for r in runs if r["mode"] == BEST_INDEPENDENT}
-    if not others:  # the recipe's independent agents: the one-step study's own runs
-        recipe_runs = unseen.read_json(unseen.STUDY_DIR / "unseen.json")["runs"]
-        others = {s: recipe_runs[f"independent_seed{s}"]["success"] for s in full}
+    recipe = unseen.read_json(unseen.STUDY_DIR / "unseen.json")  # the one-step study's runs
+    if not others:  # the recipe's independent agents
+        others = {s: recipe["runs"][f"independent_seed{s}"]["success"] for s in full}
     results["screen"] = {"winner": winner, "changes": screen["cells"][winner]["changes"]}
     results["best_independent"] = {
         "cell": best,
@@ -156,9 +147,7 @@ def summarise(
         "the previous move as inputs (27)",
         "training options": "the screen's cell for learning only (studies/one_step/beacon.py)",
     }
-    results["one_step_recipe_held_out"] = unseen.read_json(unseen.STUDY_DIR / "unseen.json")[
-        "held_out"
-    ]["modes"]
+    results["one_step_recipe_held_out"] = recipe["held_out"]["modes"]
     return results
 
 

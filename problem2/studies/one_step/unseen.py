@@ -46,7 +46,7 @@ from studies import map_pool_study
 from studies.memory import study as gru_study
 from studies.memory.held_out_tests import CONDITIONS, beacon_homing, held_out_results
 from studies.one_step.agents import OneStepMemoryEnv, OneStepMemoryTrainer
-from studies.pool_training import POOL_RULES, PoolConfig, PooledVectorEnv, PoolTrainer
+from studies.pool_training import POOL_RULES, CurriculumEnv, PoolConfig, PoolTrainer
 from studies.staging import best_env_steps, best_selection, staged_output, train_into, write_timing
 
 RESULTS = gru_study.RESULTS
@@ -73,8 +73,9 @@ LEVER_WORDS = {
 UNCHANGED_FOR_INDEPENDENT = ("dial_noise_2",)
 
 
-class PooledOneStepEnv(OneStepMemoryEnv, PooledVectorEnv):
-    """The map pool's copies with one-step memory inputs (27 for the 3 x 3 window)."""
+class PooledOneStepEnv(OneStepMemoryEnv, CurriculumEnv):
+    """The map pool's copies with one-step memory inputs (27 for the 3 x 3 window); reverse
+    starts where a trainer sets their share (none here: ``beacon.BeaconTrainer`` does)."""
 
 
 class PooledOneStepTrainer(OneStepMemoryTrainer, PoolTrainer):
@@ -100,6 +101,22 @@ def train(cfg: PoolConfig, staging: Path, progress: Any, start: float) -> Pooled
     return trainer
 
 
+def held_out_record(
+    trainer: PooledOneStepTrainer, label: str, episodes: int, start: float, trained: float
+) -> dict[str, Any]:
+    """A trained run's record, ``label`` naming it: its selected checkpoint and its exported
+    pair tested on the held-out maps (``start``, ``trained``: its clock and training time)."""
+    agents = tuple(load_policy(trainer.models_dir / f"{trainer.name}_agent_{a}.pt") for a in "AB")
+    return {
+        "mode": label,
+        "seed": trainer.seed,
+        "selected_env_steps": best_env_steps(trainer),
+        "validation_success": best_selection(trainer),
+        **held_out_results(agents, trainer.mode, episodes, trainer.cfg.max_steps),
+        "seconds": {"training": trained, "total": time.perf_counter() - start},
+    }
+
+
 def train_and_test(
     mode: str, seed: int, staging: Path, episodes: int, changes: dict, progress: Any = None
 ) -> dict[str, Any]:
@@ -107,16 +124,7 @@ def train_and_test(
     start = time.perf_counter()
     cfg = recipe(mode=mode, seed=seed, **changes)
     trainer = train(cfg, staging, progress, start)
-    trained = time.perf_counter() - start
-    agents = tuple(load_policy(trainer.models_dir / f"{trainer.name}_agent_{a}.pt") for a in "AB")
-    return {
-        "mode": mode,
-        "seed": seed,
-        "selected_env_steps": best_env_steps(trainer),
-        "validation_success": best_selection(trainer),
-        **held_out_results(agents, mode, episodes, cfg.max_steps),
-        "seconds": {"training": trained, "total": time.perf_counter() - start},
-    }
+    return held_out_record(trainer, mode, episodes, start, time.perf_counter() - start)
 
 
 def read_json(path: Path) -> dict | None:
