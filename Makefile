@@ -124,6 +124,7 @@ p2-one-step-levers: $(RUNTIME_STAMP)
 ## seeds (validation maps), then its winner's 4 modes x seeds 0-4 on the held-out maps.
 p2-beacon: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.one_step.beacon_screen
+	cd problem2 && $(PY) -m studies.one_step.beacon_around
 	cd problem2 && $(PY) -m studies.one_step.beacon_study
 
 ## Why one step of memory is enough (reads the memory panel's agents; trains its ablations).

@@ -13,7 +13,7 @@ import torch
 from analysis.map_sets import training_maps
 from multi_agent_env import MultiAgentEnv
 from settings import SettingError
-from studies.one_step import beacon_screen
+from studies.one_step import beacon_around, beacon_screen
 from studies.one_step.beacon import (
     BeaconConfig,
     BeaconTrainer,
@@ -25,6 +25,7 @@ from tests.problem2.test_p2_one_step import assert_exported_agents_follow_the_ne
 
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.\\w+` is deprecated:DeprecationWarning")
 
+MODES = ("full", "independent")
 REMEMBERED_DISTANCE = 19  # the previous copy's distance (9 + 10)
 SMALL = dict(map_pool=20, validation_maps=4, num_envs=8, seed=0)
 
@@ -191,3 +192,57 @@ def test_a_tiny_run_with_every_option_reproduces_its_bytes(tmp_path: Path) -> No
         files.append({p.name: p.read_bytes() for p in sorted(folder.glob("*.pt"))})
     assert sorted(files[0]) == ["full_seed0_agent_A.pt", "full_seed0_agent_B.pt"]
     assert files[0] == files[1]
+
+
+def test_the_distance_change_leaves_independent_agents_as_they_are(tmp_path: Path) -> None:
+    """Why the second stage's independent runs of a cell with D are the twins of its full
+    runs: masked out, the distance's change trains the same weights as the raw distance."""
+    weights = []
+    for name, options in (("raw", {}), ("change", {"distance_change": True})):
+        cfg = config(tmp_path / name, "independent", homing_potential=2.0, **options)
+        cfg.total_steps, cfg.learning_starts, cfg.batch_size = 1200, 300, 32
+        cfg.eval_interval, cfg.eval_episodes = 600, 4
+        trainer = BeaconTrainer(MultiAgentEnv(seed=641), cfg)
+        trainer.train()
+        assert trainer.updates > 0
+        weights.append([p.detach().clone() for p in trainer.online.parameters()])
+    for raw, change in zip(*weights, strict=True):
+        torch.testing.assert_close(raw, change, rtol=0, atol=0)
+
+
+def test_the_second_stage_varies_the_first_winner_and_judges_both_stages_together() -> None:
+    hd = beacon_screen.screen_cells()["HD"]["changes"]
+    cells = beacon_around.around("HD", hd)
+    assert list(cells) == ["HD k=1", "HD k=4", "HD R=0.25", "HD 2M"]
+    assert cells["HD k=4"]["changes"] == hd | {"homing_potential": 4.0}
+    assert cells["HD 2M"]["changes"] == hd | {"total_steps": 2_000_000}
+    assert all(spec["modes"] == ["full", "independent"] for spec in cells.values())
+    rhd = beacon_screen.screen_cells()["RHD"]["changes"]
+    assert [c for c in beacon_around.around("RHD", rhd) if "R=" in c] == [
+        "RHD R=0.25",
+        "RHD R=0.75",
+    ]
+    assert list(beacon_around.around("D", {"distance_change": True})) == ["D R=0.25", "D 2M"]
+    first = {
+        "winner": "HD",
+        "cells": {"HD": {"full": {"eps": {"mean": 0.48}}, "modes": ["full"]}}
+        | {"RH": {"modes": ["full", "independent"]} | {m: {"eps": {"mean": 0.55}} for m in MODES}},
+    }
+    runs = []
+    for cell, spec in cells.items():
+        for mode in spec["modes"]:
+            for seed in beacon_screen.TRAINING_SEEDS:
+                score = {"HD 2M": 0.6, "HD k=1": 0.4}.get(cell, 0.3) - 0.1 * (mode != "full")
+                rates = {"eps": score, "greedy": score}
+                runs.append({"cell": cell, "mode": mode, "seed": seed, "best": rates})
+                runs[-1]["best_env_steps"] = 1
+    summary = beacon_around.summarise(runs, first, cells)
+    assert list(summary["cells"]) == ["HD", "RH", *cells]
+    assert summary["winner"] == "HD 2M" and summary["best_independent"] == "RH"
+    assert summary["cells"]["HD 2M"]["independent_from"] == "HD 2M"
+    assert summary["cells"]["HD 2M"]["full_minus_independent_eps"]["mean"] == pytest.approx(0.1)
+
+
+def test_the_second_stage_refuses_smoke_runs_into_its_results() -> None:
+    with pytest.raises(SystemExit):
+        beacon_around.parse_args(["--total_steps", "100"])

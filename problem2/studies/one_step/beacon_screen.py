@@ -112,30 +112,40 @@ def train_cell(
     }
 
 
-def summarise(runs: list[dict], cells: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    """Per cell and mode the validation success over seeds (best checkpoint, ε and greedy),
-    and full − independent paired by seed where the cell has an independent twin."""
+def cell_table(
+    runs: list[dict], cells: dict[str, dict[str, Any]], twins: dict[str, str | None], seeds: tuple
+) -> dict[str, Any]:
+    """Per cell and mode the validation success over ``seeds`` (best checkpoint, ε and
+    greedy), and full − independent paired by seed against the cell's twin in ``twins``."""
     found = {(r["cell"], r["mode"], r["seed"]): r for r in runs}
     table: dict[str, Any] = {}
     for cell, spec in cells.items():
         entry: dict[str, Any] = {"changes": spec["changes"], "modes": spec["modes"]}
         for mode in spec["modes"]:
-            mine = [found[(cell, mode, s)] for s in TRAINING_SEEDS]
+            mine = [found[(cell, mode, s)] for s in seeds]
             entry[mode] = {
                 c: seed_statistics([r["best"][c] for r in mine]) for c in ("eps", "greedy")
             }
             entry[mode]["best_env_steps"] = [r["best_env_steps"] for r in mine]
-        twin = independent_twin(cell, cells)
+        twin = twins[cell]
         entry["independent_from"] = twin
         if twin is not None:
             entry["full_minus_independent_eps"] = seed_statistics(
                 [
                     found[(cell, "full", s)]["best"]["eps"]
                     - found[(twin, "independent", s)]["best"]["eps"]
-                    for s in TRAINING_SEEDS
+                    for s in seeds
                 ]
             )
         table[cell] = entry
+    return table
+
+
+def summarise(runs: list[dict], cells: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The screen's table (:func:`cell_table`, twins by :func:`independent_twin`), its
+    winner and each run's wall time."""
+    twins = {cell: independent_twin(cell, cells) for cell in cells}
+    table = cell_table(runs, cells, twins, TRAINING_SEEDS)
     return {
         "description": "the listener's training options for one-step memory agents on the map "
         "pool, on training seeds, judged on the validation maps (best checkpoint)",

@@ -1,19 +1,20 @@
 """The screen's winner on maps never seen: do one-step agents learn to home on the beacon?
 
-    python -m studies.one_step.beacon_study      # reads beacon_screen.json, trains, tests
+    python -m studies.one_step.beacon_study      # reads beacon_around.json, trains, tests
     python -m studies.one_step.beacon_study --plot_only   # redraw beacon.png
 
-The cell of the screen (``beacon_screen.py``) whose full agents scored best on the
-validation maps trains agents of the four modes (independent, comm, distance, full) on
-seeds 0–4 with the one-step map-pool learner and that cell's options, and each pair is
-tested from its exported files on the 40 held-out maps exactly as the one-step and GRU
-agents are (``held_out_tests.held_out_results``: success, channels replaced by another
-episode's at the same step or held constant, CIC, homing). Two comparisons for the full
-agents, both paired by seed: against the independent agents trained the same way (the
-assignment's ablation: only the mask differs), and against the independent agents of the
-screen's best independent cell (``beacon_screen.best_independent``; the recipe's are the
-one-step study's own runs, ``one_step_unseen/unseen.json``). One drawn episode of a full
-pair shows what happens once one agent stands on the target (``drawn_episode``).
+The cell of the screen's two stages (``beacon_screen.py``, ``beacon_around.py``) whose full
+agents scored best on the validation maps trains agents of the four modes (independent,
+comm, distance, full) on seeds 0–4 with the one-step map-pool learner and that cell's
+options, and each pair is tested from its exported files on the 40 held-out maps exactly as
+the one-step and GRU agents are (``held_out_tests.held_out_results``: success, channels
+replaced by another episode's at the same step or held constant, CIC, homing). Two
+comparisons for the full agents, both paired by seed: against the independent agents trained
+the same way (the assignment's ablation: only the mask differs), and against the independent
+agents of the screen's best independent cell (``beacon_screen.best_independent``; the
+recipe's are the one-step study's own runs, ``one_step_unseen/unseen.json``). One drawn
+episode of a full pair shows what happens once one agent stands on the target
+(``drawn_episode``).
 
 Outputs: ``results/studies/beacon/`` (``beacon.json``, ``beacon.png``, ``agent_models/``,
 ``training_logs/``, ``timing.json``).
@@ -52,7 +53,8 @@ from studies.memory.agents import memory_policy
 from studies.memory.held_out_tests import CONDITIONS, beacon_homing
 from studies.one_step import unseen
 from studies.one_step.beacon import BeaconTrainer
-from studies.one_step.beacon_screen import SCREEN_DIR, best_independent, config
+from studies.one_step.beacon_around import AROUND_DIR
+from studies.one_step.beacon_screen import best_independent, config
 from studies.staging import staged_output, train_into, write_timing
 
 STUDY_DIR = gru_study.RESULTS / "beacon"
@@ -186,8 +188,8 @@ def run_study(args: argparse.Namespace) -> dict:
     screen = unseen.read_json(args.screen)
     if screen is None:
         raise SystemExit(
-            f"no screen at {args.screen.resolve()}: run "
-            "python -m studies.one_step.beacon_screen first"
+            f"no screen at {args.screen.resolve()}: run python -m studies.one_step.beacon_screen "
+            "then python -m studies.one_step.beacon_around first"
         )
     winner, best = screen["winner"], best_independent(screen["cells"])
     changes = screen["cells"][winner]["changes"]
@@ -228,7 +230,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add = parser.add_argument
     add("--workers", type=int, default=available_cores(), help="processes (1..64)")
     add("--output_dir", type=Path, default=STUDY_DIR, help="folder written")
-    add("--screen", type=Path, default=SCREEN_DIR / "beacon_screen.json", help="the screen's JSON")
+    add("--screen", type=Path, default=AROUND_DIR / "beacon_around.json", help="the screen's JSON")
     add("--num_seeds", type=int, default=len(SEEDS), help=f"seeds per mode, 1..{len(SEEDS)}")
     add("--plot_only", action="store_true", help="redraw beacon.png from beacon.json (no runs)")
     add("--total_steps", type=int, default=None, help="smoke runs only: env steps per run")

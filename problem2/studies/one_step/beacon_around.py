@@ -1,0 +1,159 @@
+"""The screen's second stage: κ, the share of reverse starts and the training length around
+the first stage's winner, on the same training seeds and validation maps.
+
+    python -m studies.one_step.beacon_around   # reads beacon_screen.json, trains, writes
+
+Around the winner W of the first stage (``beacon_screen.py``; its options in ``changes``):
+W with κ = 1 and κ = 4 if it has homing shaping, W with reverse starts at shares 0.25 (and
+0.75 if W has them already), and W trained for 2 million steps instead of 1 (``around``).
+Each cell trains full and independent agents on seeds 100–102 with the cell's options; the
+distance's change acts on nothing an independent agent sees (a test holds the weights equal),
+so its independent agents are the twins of its full agents. The table holds the first
+stage's cells and these, and the winner over all of them is the cell whose full agents score
+best on the validation maps at ε = 0.05; ``beacon_study`` tests it on the held-out maps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any
+
+from batch.plumbing import (
+    ProgressLine,
+    make_console_safe,
+    run_jobs,
+    use_reproducible_matmul,
+    write_json_atomic,
+)
+from settings import available_cores
+
+from studies.memory import study as gru_study
+from studies.one_step import unseen
+from studies.one_step.beacon_screen import (
+    MILLION,
+    SCREEN_DIR,
+    TRAINING_SEEDS,
+    best_independent,
+    cell_table,
+    train_cell,
+    winner,
+)
+from studies.staging import staged_output
+
+AROUND_DIR = gru_study.RESULTS / "beacon_around"
+HOMING = (1.0, 4.0)  # the first stage's κ is 2
+LONGER = 2 * MILLION
+
+
+def around(name: str, changes: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The second stage's cells around the first stage's winner ``name`` (options ``changes``):
+    each cell's options and the modes it trains."""
+    variants: dict[str, dict[str, Any]] = {}
+    if "homing_potential" in changes:
+        for kappa in HOMING:
+            variants[f"{name} k={kappa:g}"] = {"homing_potential": kappa}
+    shares = (0.25, 0.75) if "reverse_starts" in changes else (0.25,)
+    for share in shares:
+        variants[f"{name} R={share:g}"] = {"reverse_starts": share}
+    variants[f"{name} 2M"] = {"total_steps": LONGER}
+    modes = ["full", "independent"]
+    return {cell: {"changes": changes | v, "modes": modes} for cell, v in variants.items()}
+
+
+def summarise(runs: list[dict], first: dict[str, Any], cells: dict[str, Any]) -> dict[str, Any]:
+    """Both stages' cells in one table (the first stage's as it wrote them), the winner over
+    all of them and the best independent cell."""
+    table = first["cells"] | cell_table(runs, cells, {c: c for c in cells}, TRAINING_SEEDS)
+    return {
+        "description": "the listener's training options for one-step memory agents on the map "
+        "pool, both stages of the screen, on training seeds, judged on the validation maps "
+        "(best checkpoint)",
+        "training_seeds": list(TRAINING_SEEDS),
+        "first_stage_winner": first["winner"],
+        "second_stage": list(cells),
+        "cells": table,
+        "winner": winner(table),
+        "best_independent": best_independent(table),
+    }
+
+
+def run_stage(args: argparse.Namespace) -> dict:
+    """Train the second stage's runs; write ``beacon_around.json`` and the training logs."""
+    first = unseen.read_json(args.screen)
+    if first is None:
+        raise SystemExit(
+            f"no first stage at {args.screen.resolve()}: run "
+            "python -m studies.one_step.beacon_screen first"
+        )
+    cells = around(first["winner"], first["cells"][first["winner"]]["changes"])
+    jobs = [
+        (cell, mode, seed, spec["changes"], None, args.smoke)
+        for cell, spec in cells.items()
+        for mode in spec["modes"]
+        for seed in TRAINING_SEEDS
+    ]
+    jobs.sort(key=lambda job: -job[3].get("total_steps", MILLION))  # longest first
+    with staged_output(args.output_dir, subfolders=()) as staging:
+        jobs = [(c, m, s, ch, staging, smoke) for c, m, s, ch, _, smoke in jobs]
+        steps = [args.smoke.get("total_steps", job[3].get("total_steps", MILLION)) for job in jobs]
+        progress = ProgressLine(len(jobs), sum(steps) // len(steps))  # mean steps per run
+        runs = run_jobs(train_cell, jobs, args.workers, progress)
+        results = summarise(runs, first, cells)
+        write_json_atomic(staging / "beacon_around.json", results)
+        timing = {f"{r['cell']}/{r['mode']}_seed{r['seed']}": r["seconds"] for r in runs}
+        write_json_atomic(staging / "timing.json", timing)  # wall times: not a result
+    return results
+
+
+def format_stage(results: dict) -> str:
+    """One line per second-stage cell: full and independent validation success, difference."""
+    lines = [f"{'cell':<14} {'full':>6} {'indep':>6} {'diff':>7}"]
+    for cell in results["second_stage"]:
+        entry = results["cells"][cell]
+        full, indep = entry["full"]["eps"]["mean"], entry["independent"]["eps"]["mean"]
+        diff = entry["full_minus_independent_eps"]["mean"]
+        lines.append(f"{cell:<14} {full:6.3f} {indep:6.3f} {diff:+7.3f}")
+    lines.append(f"winner: {results['winner']}; best independent: {results['best_independent']}")
+    return "\n".join(lines)
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
+    add = parser.add_argument
+    add("--workers", type=int, default=available_cores(), help="processes (1..64)")
+    add("--output_dir", type=Path, default=AROUND_DIR, help="folder written")
+    add("--screen", type=Path, default=SCREEN_DIR / "beacon_screen.json", help="the first stage")
+    add("--total_steps", type=int, default=None, help="smoke runs only: env steps per run")
+    args = parser.parse_args(argv)
+    if not 1 <= args.workers <= 64:
+        parser.error(f"--workers must be in 1..64, got {args.workers}")
+    args.smoke = {}
+    if args.total_steps is not None:
+        if args.output_dir.resolve() == AROUND_DIR.resolve():
+            parser.error("--total_steps is for smoke runs: give another --output_dir")
+        if args.total_steps < 1:
+            parser.error(f"--total_steps must be an integer >= 1, got {args.total_steps}")
+        interval = max(1, args.total_steps // 2)
+        args.smoke = {
+            "total_steps": args.total_steps,
+            "eval_interval": interval,
+            "eval_episodes": 20,
+        }
+    return args
+
+
+def main(argv: list[str] | None = None) -> dict:
+    use_reproducible_matmul()  # before the first matrix product
+    make_console_safe()
+    args = parse_args(argv)
+    start = time.perf_counter()
+    results = run_stage(args)
+    print(format_stage(results))
+    print(f"wrote {args.output_dir} ({time.perf_counter() - start:.0f} s)")
+    return results
+
+
+if __name__ == "__main__":
+    main()
