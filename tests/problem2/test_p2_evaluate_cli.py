@@ -36,13 +36,14 @@ from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, run_episodes
 from vector_env import VectorMultiAgentEnv
 
-from tests.conftest import PROBLEM2
+from tests.conftest import PROBLEM2, load_problem_module
 
 TINY_RUN_FLAGS = (
     "--total_steps 1536 --num_envs 16 --learning_starts 512 --batch_size 32 --eval_interval 512 "
     "--eval_episodes 16 --final_eval_episodes 32 --buffer_size 4096 --num_seeds 2 --workers 1"
 )
 TINY_RUN = TINY_RUN_FLAGS.split()
+EPISODES = 200  # test episodes per seed and condition in the ``evaluated`` run
 OUTPUTS = [
     "performance.json",
     "comparison_table.md",
@@ -70,22 +71,18 @@ OUTPUTS = [
 
 @pytest.fixture(scope="module")
 def tiny_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A root with tiny models of the three modes (seeds 641, 642), trained by train.py."""
+    """A root with tiny models of the three modes (seeds 641, 642), trained by train.py (in
+    this process: train.py's own subprocess runs are tested in test_p2_cli.py)."""
     root = tmp_path_factory.mktemp("p2tiny")
-    subprocess.run(
-        [sys.executable, "train.py", *TINY_RUN, "--output_dir", str(root)],
-        cwd=PROBLEM2,
-        check=True,
-        capture_output=True,
-    )
+    load_problem_module("problem2", "train").main([*TINY_RUN, "--output_dir", str(root)])
     return root
 
 
 @pytest.fixture(scope="module")
 def evaluated(tiny_root: Path) -> tuple[dict, Path]:
     output = tiny_root / "evaluation_results"
-    argv = ["--checkpoint", str(tiny_root), "--num_episodes", "200"]  # the run folder itself
-    return main(argv + ["--generalization_episodes", "40", "--render"]), output
+    argv = ["--checkpoint", str(tiny_root), "--num_episodes", str(EPISODES)]  # the run folder
+    return main(argv + ["--generalization_episodes", "10", "--render"]), output
 
 
 def test_evaluate_writes_every_output(evaluated: tuple[dict, Path]) -> None:
@@ -141,7 +138,7 @@ def test_the_last_weights_are_tested_beside_the_selected_ones(
     full = full["modes"]["full"]
     for condition in ("greedy", "eps"):
         last = full["last_weights"][condition]
-        assert last["episodes_per_seed"] == full[condition]["episodes_per_seed"] == 200
+        assert last["episodes_per_seed"] == full[condition]["episodes_per_seed"] == EPISODES
         per_seed = [full["per_seed"][str(s)]["last_weights"][condition] for s in (641, 642)]
         assert last["success_rate"]["per_seed"] == [p["success_rate"] for p in per_seed]
 
@@ -168,6 +165,7 @@ def test_communication_analysis_has_causal_test_and_verdict(evaluated: tuple[dic
     assert list(generalization["maps"]) == [str(k) for k in range(10)]
     assert all(entry["oracle"]["success_rate"] == 1.0 for entry in generalization["maps"].values())
     held_out = generalization["held_out"]
+    # The 40 held-out maps (a fixed set), whatever the episodes per map.
     assert len(held_out["map_seeds"]) == 40 and set(held_out["success_rate"]) == set(POLICIES)
     assert held_out["success_rate"]["oracle"]["mean"] == 1.0
     assert set(held_out["modes"]) == {"independent", "comm", "full"}
@@ -462,11 +460,15 @@ def test_manifest_runs_are_evaluated_and_foreign_or_changed_files_refused(
 def test_cli_survives_a_cp1252_console_and_without_manifest_notes_the_files_found(
     tiny_root: Path, tmp_path: Path
 ) -> None:
-    """One full evaluation (the slowest test's work, done once): on a cp1252 console, of
-    model files without their manifest (e.g. trained before manifests existed)."""
+    """A whole evaluation in its own process, on a cp1252 console, of model files without
+    their manifest (e.g. trained before manifests existed). Only the full mode's files are
+    copied: a third of the work (one mode, one GIF); every mode's outputs are tested on the
+    ``evaluated`` fixture's run."""
     models = tmp_path / "agent_models"
-    shutil.copytree(tiny_root / "agent_models", models)
-    (models / "manifest.json").unlink()
+    models.mkdir()
+    for path in (tiny_root / "agent_models").glob("*.*"):
+        if path.name.startswith("full_") or path.name in ("map.json", "hyperparameters.json"):
+            shutil.copy(path, models)
     result = subprocess.run(
         [sys.executable, "evaluate.py", *_quick(models, "--render")],
         cwd=PROBLEM2,
