@@ -344,8 +344,12 @@ def test_summarise_only_rewrites_what_the_run_wrote(
     """Re-summarising from the runs memory.json records gives the bytes the run wrote."""
     from studies.memory import study
 
-    # A tiny run that still makes an update (one below learning_starts is refused).
-    monkeypatch.setitem(study.RECIPE, "learning_starts", 1152)
+    # A tiny run that still makes an update (one below learning_starts is refused), on a
+    # small map pool with short episodes: the held-out tests (40 maps) take most of the time,
+    # and re-summarising gives the run's bytes whatever the episodes' length.
+    small = {"learning_starts": 1152, "max_steps": 10, "map_pool": 20, "validation_maps": 4}
+    for key, value in small.items():
+        monkeypatch.setitem(study.RECIPE, key, value)
     flags = ["--total_steps", "1200", "--num_seeds", "1", "--mode", "comm", "--workers", "1"]
     flags += ["--episodes_per_map", "2", "--output_dir", str(tmp_path)]
     study.main(flags)
