@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +25,7 @@ from studies import panel
 from studies.panel import EFFECTS, PANEL_MAP_SEEDS, landmark_distance
 from studies.panel_behaviour import arrival_measures
 
-from tests.conftest import PROBLEM2, ROOT
+from tests.conftest import ROOT, load_problem_module
 
 DATA = Path(__file__).parent / "data"
 
@@ -167,20 +165,10 @@ OUTPUTS = ("panel.json", "panel.csv", "panel_effects.png", "timing.json")
 def tiny_panel(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Tiny batches of modes independent and full on maps 641 and 4 (one seed each)."""
     root = tmp_path_factory.mktemp("panel")
+    train = load_problem_module("problem2", "train")  # in this process: the panel is under test
     for map_seed in (641, 4):
-        subprocess.run(
-            [
-                sys.executable,
-                "train.py",
-                *TINY_PANEL,
-                "--map_seed",
-                str(map_seed),
-                "--output_dir",
-                str(root / f"map{map_seed}"),
-            ],
-            cwd=PROBLEM2,
-            check=True,
-            capture_output=True,
+        train.main(
+            [*TINY_PANEL, "--map_seed", str(map_seed), "--output_dir", str(root / f"map{map_seed}")]
         )
     return root
 
