@@ -163,8 +163,8 @@ def test_memory_policy_runs_the_exported_pair(tmp_path: Path) -> None:
 
 def test_tiny_batch_trains_exports_and_reproduces_bytes(tmp_path: Path) -> None:
     files = {}
-    for name in ("first", "second"):
-        cfg = small_config("independent,full", tmp_path / name)
+    for name in ("first", "second"):  # 1200 steps: updates from step 500 on, as with more
+        cfg = small_config("independent,full", tmp_path / name, total_steps=1200)
         finals = run_experiments(cfg, trainer_class=OneStepMemoryTrainer)
         assert [(f["mode"], f["seed"]) for f in finals] == [("independent", 641), ("full", 641)]
         models = tmp_path / name / "agent_models"
