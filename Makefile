@@ -121,7 +121,7 @@ p2-one-step-levers: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.one_step.unseen --levers
 
 ## Teaching the listener on maps never seen: the screen of the training options on training
-## seeds (validation maps), then its winner's 4 modes x seeds 0-4 on the held-out maps.
+## seeds (validation maps) in two stages, then its winner's 4 modes x seeds 0-4 on the held-out maps.
 p2-beacon: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.one_step.beacon_screen
 	cd problem2 && $(PY) -m studies.one_step.beacon_around

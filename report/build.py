@@ -41,7 +41,7 @@ OPTIONAL_INPUTS = {
     "memory-why": "problem2/results/studies/memory_panel/why/why.json",
     "one-step-unseen": "problem2/results/studies/one_step_unseen/unseen.json",
     "one-step-levers": "problem2/results/studies/one_step_unseen_levers/levers.json",
-    "beacon-screen": "problem2/results/studies/beacon_screen/beacon_screen.json",
+    "beacon-screen": "problem2/results/studies/beacon_around/beacon_around.json",
     "beacon": "problem2/results/studies/beacon/beacon.json",
 }
 
