@@ -10,7 +10,8 @@ prototype's cell R + H + D with a positive-listening loss (λ = 0.1, full only).
 Every run is the one-step map-pool learner (``map_pool_study.RECIPE``) with its cell's
 options (:class:`~studies.one_step.beacon.BeaconConfig`) on training seeds 100–102, judged
 by its best checkpoint on the validation maps at ε = 0.05 (the held-out maps are never
-used for a choice). The winner (:func:`winner`) is the cell whose full agents score best.
+used for a choice). The winner (:func:`winner`) is the cell whose full agents score best;
+the second stage (``beacon_around.py``) varies it.
 """
 
 from __future__ import annotations
