@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from analysis.runs import resolve_checkpoint
+from analysis.runs import discover_experiments, resolve_checkpoint
 from batch import experiments
 from settings import BatchConfig, SettingError, validated
 
@@ -225,3 +225,12 @@ def test_without_the_virtual_environment_a_command_says_what_to_do(
     assert result.returncode == 1
     assert missing in result.stderr and "source .venv/bin/activate" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+# ------------------------------------------------------------------ the committed results
+def test_the_committed_models_folder_holds_its_batches_only() -> None:
+    """``make`` evaluates results/agent_models: a stray model file (one in no manifest, e.g.
+    from a run by hand) makes evaluate.py refuse the folder, so a fresh clone's make fails."""
+    experiments = discover_experiments(PROBLEM2 / "results" / "agent_models")
+    assert experiments and all(e.manifest is not None for e in experiments)
+    assert {"independent", "comm", "full"} <= set(experiments[0].seeds)
