@@ -21,13 +21,10 @@ from pathlib import Path
 from typing import Any
 
 from batch.plumbing import (
-    ProgressLine,
     make_console_safe,
-    run_jobs,
     use_reproducible_matmul,
     write_json_atomic,
 )
-from settings import available_cores
 
 from studies.memory import study as gru_study
 from studies.one_step import unseen
@@ -37,7 +34,9 @@ from studies.one_step.beacon_screen import (
     TRAINING_SEEDS,
     best_independent,
     cell_table,
-    train_cell,
+    checked_stage_args,
+    stage_parser,
+    train_cells,
     winner,
 )
 from studies.staging import staged_output
@@ -88,22 +87,9 @@ def run_stage(args: argparse.Namespace) -> dict:
             "python -m studies.one_step.beacon_screen first"
         )
     cells = around(first["winner"], first["cells"][first["winner"]]["changes"])
-    jobs = [
-        (cell, mode, seed, spec["changes"], None, args.smoke)
-        for cell, spec in cells.items()
-        for mode in spec["modes"]
-        for seed in TRAINING_SEEDS
-    ]
-    jobs.sort(key=lambda job: -job[3].get("total_steps", MILLION))  # longest first
     with staged_output(args.output_dir, subfolders=()) as staging:
-        jobs = [(c, m, s, ch, staging, smoke) for c, m, s, ch, _, smoke in jobs]
-        steps = [args.smoke.get("total_steps", job[3].get("total_steps", MILLION)) for job in jobs]
-        progress = ProgressLine(len(jobs), sum(steps) // len(steps))  # mean steps per run
-        runs = run_jobs(train_cell, jobs, args.workers, progress)
-        results = summarise(runs, first, cells)
+        results = summarise(train_cells(cells, args, staging), first, cells)
         write_json_atomic(staging / "beacon_around.json", results)
-        timing = {f"{r['cell']}/{r['mode']}_seed{r['seed']}": r["seconds"] for r in runs}
-        write_json_atomic(staging / "timing.json", timing)  # wall times: not a result
     return results
 
 
@@ -120,28 +106,11 @@ def format_stage(results: dict) -> str:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
-    add = parser.add_argument
-    add("--workers", type=int, default=available_cores(), help="processes (1..64)")
-    add("--output_dir", type=Path, default=AROUND_DIR, help="folder written")
-    add("--screen", type=Path, default=SCREEN_DIR / "beacon_screen.json", help="the first stage")
-    add("--total_steps", type=int, default=None, help="smoke runs only: env steps per run")
-    args = parser.parse_args(argv)
-    if not 1 <= args.workers <= 64:
-        parser.error(f"--workers must be in 1..64, got {args.workers}")
-    args.smoke = {}
-    if args.total_steps is not None:
-        if args.output_dir.resolve() == AROUND_DIR.resolve():
-            parser.error("--total_steps is for smoke runs: give another --output_dir")
-        if args.total_steps < 1:
-            parser.error(f"--total_steps must be an integer >= 1, got {args.total_steps}")
-        interval = max(1, args.total_steps // 2)
-        args.smoke = {
-            "total_steps": args.total_steps,
-            "eval_interval": interval,
-            "eval_episodes": 20,
-        }
-    return args
+    parser = stage_parser(__doc__.split("\n\n")[0], AROUND_DIR)
+    parser.add_argument(
+        "--screen", type=Path, default=SCREEN_DIR / "beacon_screen.json", help="the first stage"
+    )
+    return checked_stage_args(parser, parser.parse_args(argv), AROUND_DIR)
 
 
 def main(argv: list[str] | None = None) -> dict:

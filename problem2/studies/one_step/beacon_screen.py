@@ -169,24 +169,30 @@ def best_independent(table: dict[str, Any]) -> str:
     return max(trained, key=lambda cell: table[cell]["independent"]["eps"]["mean"])
 
 
-def run_screen(args: argparse.Namespace) -> dict:
-    """Train every cell's runs; write ``beacon_screen.json`` and the training logs."""
-    cells = screen_cells()
+def train_cells(cells: dict[str, dict[str, Any]], args: argparse.Namespace, staging: Path) -> list:
+    """Train every (cell, mode, training seed) of ``cells`` into ``staging``, the longest runs
+    first; their records (:func:`train_cell`), and their wall times in ``timing.json``."""
     jobs = [
-        (cell, mode, seed, spec["changes"], None, args.smoke)
+        (cell, mode, seed, spec["changes"], staging, args.smoke)
         for cell, spec in cells.items()
         for mode in spec["modes"]
         for seed in TRAINING_SEEDS
     ]
     jobs.sort(key=lambda job: -job[3].get("total_steps", MILLION))  # longest first
+    steps = [args.smoke.get("total_steps", job[3].get("total_steps", MILLION)) for job in jobs]
+    progress = ProgressLine(len(jobs), sum(steps) // len(steps))  # mean steps per run
+    runs = run_jobs(train_cell, jobs, args.workers, progress)
+    timing = {f"{r['cell']}/{r['mode']}_seed{r['seed']}": r["seconds"] for r in runs}
+    write_json_atomic(staging / "timing.json", timing)  # wall times: not a result
+    return runs
+
+
+def run_screen(args: argparse.Namespace) -> dict:
+    """Train every cell's runs; write ``beacon_screen.json`` and the training logs."""
+    cells = screen_cells()
     with staged_output(args.output_dir, subfolders=()) as staging:
-        jobs = [(c, m, s, ch, staging, smoke) for c, m, s, ch, _, smoke in jobs]
-        steps = args.smoke.get("total_steps", map_pool_study.RECIPE["total_steps"])
-        runs = run_jobs(train_cell, jobs, args.workers, ProgressLine(len(jobs), steps))
-        results = summarise(runs, cells)
+        results = summarise(train_cells(cells, args, staging), cells)
         write_json_atomic(staging / "beacon_screen.json", results)
-        timing = {f"{r['cell']}/{r['mode']}_seed{r['seed']}": r["seconds"] for r in runs}
-        write_json_atomic(staging / "timing.json", timing)  # wall times: not a result
     return results
 
 
@@ -206,18 +212,26 @@ def format_screen(results: dict) -> str:
     return "\n".join(lines)
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
+def stage_parser(description: str, default_dir: Path) -> argparse.ArgumentParser:
+    """The flags of a screen's stage (``default_dir``: where its results go)."""
+    parser = argparse.ArgumentParser(description=description, allow_abbrev=False)
     add = parser.add_argument
     add("--workers", type=int, default=available_cores(), help="processes (1..64)")
-    add("--output_dir", type=Path, default=SCREEN_DIR, help="folder written")
+    add("--output_dir", type=Path, default=default_dir, help="folder written")
     add("--total_steps", type=int, default=None, help="smoke runs only: env steps per run")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def checked_stage_args(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, default_dir: Path
+) -> argparse.Namespace:
+    """``args`` checked, with ``args.smoke`` the settings of a smoke run (``--total_steps``,
+    refused into ``default_dir``) or empty."""
     if not 1 <= args.workers <= 64:
         parser.error(f"--workers must be in 1..64, got {args.workers}")
     args.smoke = {}
     if args.total_steps is not None:
-        if args.output_dir.resolve() == SCREEN_DIR.resolve():
+        if args.output_dir.resolve() == default_dir.resolve():
             parser.error("--total_steps is for smoke runs: give another --output_dir")
         if args.total_steps < 1:
             parser.error(f"--total_steps must be an integer >= 1, got {args.total_steps}")
@@ -228,6 +242,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             "eval_episodes": 20,
         }
     return args
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = stage_parser(__doc__.split("\n\n")[0], SCREEN_DIR)
+    return checked_stage_args(parser, parser.parse_args(argv), SCREEN_DIR)
 
 
 def main(argv: list[str] | None = None) -> dict:
