@@ -38,6 +38,11 @@ class SettingError(ValueError):
         super().__init__("\n".join(f"{n} {p}, got {v!r}" for n, p, v in self.problems))
         self.name, self.problem, self.value = name, problem, value
 
+    def __reduce__(self) -> tuple:
+        # Rebuilt from its problems: a worker process's error then reaches the parent (the
+        # default pickling passes only the message, and the pool's result thread dies on it).
+        return type(self), (*self.problems[0], *self.problems[1:])
+
 
 def usage(error: SettingError) -> str:
     """The usage error, a line per problem: ``argument --name: problem, got value``."""

@@ -5,8 +5,10 @@ consistent when the batch is interrupted or its parent process is killed."""
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
+import pickle
 import shutil
 import signal
 import subprocess
@@ -16,8 +18,9 @@ from pathlib import Path
 
 import pytest
 from batch import experiments  # the module train.py uses (monkeypatched below)
-from batch.plumbing import remove_stale_temporaries
+from batch.plumbing import ProgressLine, remove_stale_temporaries, run_jobs
 from rollout import select_best
+from settings import SettingError
 
 from tests.conftest import PROBLEM2, load_problem_module
 
@@ -275,3 +278,18 @@ def test_ctrl_c_keeps_the_measured_rows_and_leaves_the_results_untouched(tmp_pat
     for seed in (1, 2):
         rows = experiments.read_csv(out / "interrupted" / "training_logs" / f"comm_seed{seed}.csv")
         assert len(rows) >= 3 and rows[0]["env_steps"] == 0
+
+
+def refused_setting(value: int, progress_sink: object) -> None:
+    """A job of ``run_jobs`` whose settings are refused (run in a worker process)."""
+    raise SettingError("total_steps", "must be at least learning_starts 5000", value)
+
+
+def test_a_setting_refused_in_a_worker_reaches_the_parent_whole() -> None:
+    """A worker's error crosses the process boundary by pickling; an exception that cannot
+    be rebuilt from its pickle stops the pool's result thread and the batch waits forever."""
+    error = SettingError("lr", "must be > 0", -1.0, ("gamma", "must be in [0, 1]", 2.0))
+    assert pickle.loads(pickle.dumps(error)).problems == error.problems
+    with pytest.raises(SettingError) as raised:
+        run_jobs(refused_setting, [(3000,), (4000,)], 2, ProgressLine(2, 0, stream=io.StringIO()))
+    assert raised.value.problems == [("total_steps", "must be at least learning_starts 5000", 3000)]
