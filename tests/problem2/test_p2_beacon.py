@@ -13,7 +13,7 @@ import torch
 from analysis.map_sets import training_maps
 from multi_agent_env import MultiAgentEnv
 from settings import SettingError
-from studies.one_step import beacon_around, beacon_screen
+from studies.one_step import beacon_around, beacon_screen, beacon_study
 from studies.one_step.beacon import (
     BeaconConfig,
     BeaconTrainer,
@@ -246,3 +246,13 @@ def test_the_second_stage_varies_the_first_winner_and_judges_both_stages_togethe
 def test_the_second_stage_refuses_smoke_runs_into_its_results() -> None:
     with pytest.raises(SystemExit):
         beacon_around.parse_args(["--total_steps", "100"])
+
+
+@pytest.mark.parametrize("module", [beacon_screen, beacon_around, beacon_study])
+def test_a_smoke_budget_without_an_update_is_refused_before_any_run(
+    module, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit):
+        module.parse_args(["--total_steps", "3000", "--output_dir", str(tmp_path / "out")])
+    assert "--total_steps: must be at least learning_starts" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

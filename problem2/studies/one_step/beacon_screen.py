@@ -31,7 +31,7 @@ from batch.plumbing import (
     write_json_atomic,
 )
 from multi_agent_env import MultiAgentEnv
-from settings import available_cores, validated
+from settings import SettingError, available_cores, usage, validated
 
 from studies import map_pool_study
 from studies.memory import study as gru_study
@@ -241,7 +241,17 @@ def checked_stage_args(
             "eval_interval": interval,
             "eval_episodes": 20,
         }
+    refuse_unlearnable(parser, args.smoke)
     return args
+
+
+def refuse_unlearnable(parser: argparse.ArgumentParser, smoke: dict[str, Any]) -> None:
+    """A usage error, before any run starts, if the runs' settings are refused (e.g. a smoke
+    budget that ends before the first update)."""
+    try:
+        config("full", TRAINING_SEEDS[0], {}, smoke)
+    except SettingError as error:
+        parser.error(usage(error))
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:

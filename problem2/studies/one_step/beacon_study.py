@@ -54,7 +54,7 @@ from studies.memory.held_out_tests import CONDITIONS, beacon_homing
 from studies.one_step import unseen
 from studies.one_step.beacon import BeaconTrainer
 from studies.one_step.beacon_around import AROUND_DIR
-from studies.one_step.beacon_screen import best_independent, config
+from studies.one_step.beacon_screen import best_independent, config, refuse_unlearnable
 from studies.staging import staged_output, train_into, write_timing
 
 STUDY_DIR = gru_study.RESULTS / "beacon"
@@ -255,6 +255,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         )
     if "total_steps" in smoke:
         smoke |= {"eval_interval": max(1, smoke["total_steps"] // 2), "eval_episodes": 20}
+    refuse_unlearnable(parser, smoke)
     args.smoke = smoke
     return args
 
