@@ -31,7 +31,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-import batch.venv_check  # noqa: F401  (first: checks the packages, stdlib only)
+import safety  # noqa: F401  (first: checks the packages, stdlib only)
 import torch
 from analysis.evaluator import MultiAgentEvaluator
 from analysis.outputs import write_outputs
@@ -45,9 +45,9 @@ from analysis.runs import (
     model_paths,
     resolve_checkpoint,
 )
-from batch.plumbing import make_console_safe, use_reproducible_matmul
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON
+from safety import make_console_safe, use_reproducible_matmul
 
 __all__ = ["MultiAgentEvaluator", "create_evaluation_report", "load_trained_models", "main"]
 DEFAULT_CHECKPOINT = DEFAULT_ROOT / "agent_models"

@@ -1,6 +1,7 @@
 """Q-networks with a message head (one agent's, and both agents' stacked for training), the
 observation masks of the ablations, and the form a policy file holds: a network behind its
-mask (``batch.plumbing.export_policy`` writes it as TorchScript).
+mask, written as TorchScript by :func:`export_policy` (byte-stable: the same weights give the
+same file anywhere).
 
 Both networks follow the assignment's formula with one hidden layer:
     h = ReLU(W1 x + b1),   Q = W_q h + b_q  (or DuelingDQN's form),   m = sigmoid(w_m·h + b_m)
@@ -9,11 +10,18 @@ Both networks follow the assignment's formula with one hidden layer:
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+import hashlib
+import io
+import warnings
+import zipfile
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 import torch
 from grid_maps import positive_int
+from safety import temporary_path_for
 from torch import nn
 
 OBSERVATION_DIM = 11  # the default 3 x 3 window: 9 cells, message, distance
@@ -146,7 +154,7 @@ class PairedQNetworks(nn.Module):
 
 
 # ------------------------------------------------ the form a policy file holds
-# Their class paths are written into every policy file (``batch.plumbing.export_policy``).
+# Their class paths are written into every policy file (:func:`export_policy`).
 class _ExportLinear(nn.Module):
     """``nn.Linear`` without TorchScript constants. TorchScript writes a module's constants
     (``in_features``, ``out_features``) in set order, which follows Python's per-process
@@ -188,3 +196,66 @@ def exportable_copy(network: nn.Module) -> nn.Module:
         if isinstance(child, nn.Linear):
             setattr(exported, name, _ExportLinear(child))
     return exported
+
+
+@contextmanager
+def quiet_torchscript() -> Iterator[None]:
+    """torch 2.13 marks ``torch.jit`` deprecated, but the course requires TorchScript files
+    that load with ``torch.jit.load`` alone, so the warning is expected here."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", r"`torch\.jit\.\w+` is deprecated", DeprecationWarning)
+        yield
+
+
+def export_policy(
+    network: MessagingQNetwork,
+    mask: str | Sequence[float] | np.ndarray | torch.Tensor,
+    path: str | Path,
+) -> Path:
+    """Script ``network`` behind ``mask`` (an ablation name, for any input_dim, or input_dim
+    numbers) and save it atomically with ``torch.jit.save``. ``network`` itself is left
+    untouched (a CPU copy in eval mode is exported). Returns the path written."""
+    input_dim = network.hidden.in_features
+    if isinstance(mask, str):
+        mask = observation_mask(mask, input_dim)
+    elif isinstance(mask, torch.Tensor):
+        mask = mask.detach().cpu().numpy()
+    mask_tensor = torch.from_numpy(np.array(mask, dtype=np.float32)).flatten()  # a copy
+    if mask_tensor.numel() != input_dim:
+        raise ValueError(f"mask has {mask_tensor.numel()} elements; the network takes {input_dim}")
+    return save_scripted(MaskedPolicy(exportable_copy(network), mask_tensor), path)
+
+
+def save_scripted(module: nn.Module, path: str | Path) -> Path:
+    """Script ``module`` and save it atomically, the same weights giving the same bytes
+    anywhere (:func:`without_debug_sources`). Returns the path written."""
+    # Saving to memory first keeps the archive's inner folder name fixed ("archive", not the
+    # temporary file's name), so the same weights always give byte-identical files.
+    buffer = io.BytesIO()
+    with quiet_torchscript():
+        torch.jit.save(torch.jit.script(module), buffer)
+    with temporary_path_for(path) as temporary:
+        temporary.write_bytes(without_debug_sources(buffer.getvalue()))
+    return Path(path)
+
+
+def without_debug_sources(archive: bytes) -> bytes:
+    """Make a TorchScript archive depend on its content only: drop the ``*.debug_pkl``
+    entries (source maps holding this file's absolute path, which ``torch.jit.load`` does not
+    need), and replace the random per-process ``.data/serialization_id`` by 40 digits of a
+    SHA-256 of the other entries, so equal weights give byte-identical files anywhere."""
+    source = zipfile.ZipFile(io.BytesIO(archive))
+    entries = [e for e in source.infolist() if not e.filename.endswith(".debug_pkl")]
+    digest = hashlib.sha256()
+    for entry in entries:
+        if not entry.filename.endswith("serialization_id"):
+            digest.update(entry.filename.encode() + source.read(entry.filename))
+    content_id = str(int(digest.hexdigest(), 16))[:40].zfill(40).encode()
+    output = io.BytesIO()
+    with zipfile.ZipFile(output, "w", zipfile.ZIP_STORED) as stripped:
+        for entry in entries:
+            data = source.read(entry.filename)
+            stripped.writestr(
+                entry, content_id if entry.filename.endswith("serialization_id") else data
+            )
+    return output.getvalue()

@@ -23,8 +23,8 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
-import batch.venv_check  # noqa: F401  (first: checks the packages, stdlib only)
 import numpy as np
+import safety  # noqa: F401  (first: checks the packages, stdlib only)
 import torch
 from batch.experiments import (
     INTERRUPTED,
@@ -34,11 +34,11 @@ from batch.experiments import (
     output_root,
     run_experiments,
 )
-from batch.plumbing import make_console_safe, use_reproducible_matmul
 from grid_maps import NUM_ACTIONS
 from models import observation_mask
 from replay_buffer import ReplayBuffer
 from rollout import EVAL_SEED, Rollout
+from safety import make_console_safe, use_reproducible_matmul
 from settings import BatchConfig, SettingError, usage, validated
 from train_config import TrainConfig
 from trainer import EVAL_EPSILON, step_fields

@@ -26,7 +26,7 @@ for folder in (PROBLEM2, PROBLEM1):
 
 # As every entry point does, ask for MKL's reproducible code path before the first matrix
 # product, so tests compute the same bytes as the committed runs (and as their workers).
-importlib.import_module("batch.plumbing").use_reproducible_matmul()
+importlib.import_module("safety").use_reproducible_matmul()
 
 
 def load_problem_module(problem: str, name: str) -> ModuleType:

@@ -20,9 +20,8 @@ from collections import deque
 from functools import partial
 from pathlib import Path
 
-import batch.venv_check  # noqa: F401  (first: checks the packages, stdlib only)
 import numpy as np
-from batch.plumbing import use_reproducible_matmul, write_json_atomic
+import safety  # noqa: F401  (first: checks the packages, stdlib only)
 from grid_maps import (
     ACTION_DELTAS,
     DEFAULT_MAP_SEED,
@@ -32,6 +31,7 @@ from grid_maps import (
     generate_map,
 )
 from rollout import EVAL_SEED, PolicyFn, evaluate_policy
+from safety import use_reproducible_matmul, write_json_atomic
 from vector_env import REWARD_MODES, VectorMultiAgentEnv
 
 RESULTS_DIR = Path(__file__).resolve().parent.parent / "results" / "evaluation_results"

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from batch.plumbing import temporary_path_for
+from safety import temporary_path_for
 
 from analysis.estimate_plots import plot_failure_decomposition, plot_interventions, plot_measures
 from analysis.messages import mean_message_per_cell

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from batch.plumbing import temporary_path_for
 from grid_maps import OBSTACLE, TARGET
 from matplotlib.animation import FuncAnimation, PillowWriter
 from matplotlib.axes import Axes
@@ -22,6 +21,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator, StrMethodFormatter
 from models import MASKED_INPUTS, MESSAGE_INDEX
 from rollout import EpisodeResults
+from safety import temporary_path_for
 
 from analysis.failures import FAILURE_KINDS, classify_failures
 

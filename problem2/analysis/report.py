@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from batch.plumbing import temporary_path_for
+from safety import temporary_path_for
 
 from analysis.failures import DECOMPOSITION, FAILURE_KINDS
 

@@ -25,9 +25,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from batch.plumbing import quiet_torchscript
 from grid_maps import DEFAULT_MAP_SEED, check_grid, generate_map
-from models import OBSERVATION_DIM
+from models import OBSERVATION_DIM, quiet_torchscript
 
 PROBLEM2 = Path(__file__).resolve().parent.parent
 DEFAULT_ROOT = PROBLEM2 / "results"
@@ -61,7 +60,7 @@ def load_map(path: str | Path) -> np.ndarray:
 
 
 def load_policy(path: str | Path) -> torch.jit.ScriptModule:
-    """Load a policy written by ``batch.plumbing.export_policy`` (needs only ``torch.jit.load``).
+    """Load a policy written by ``models.export_policy`` (needs only ``torch.jit.load``).
 
     Raises FileNotFoundError if ``path`` does not exist, ValueError if it is not a
     TorchScript module."""

@@ -14,9 +14,9 @@ import argparse
 import json
 from pathlib import Path
 
-import batch.venv_check  # noqa: F401  (first: checks the packages, stdlib only)
+import safety  # noqa: F401  (first: checks the packages, stdlib only)
 from batch.experiments import MANIFEST, curves_title, plot_training_curves
-from batch.plumbing import use_reproducible_matmul
+from safety import use_reproducible_matmul
 from train_config import DEFAULT_OUTPUT_DIR
 
 

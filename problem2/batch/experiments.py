@@ -21,21 +21,15 @@ from typing import Any
 import numpy as np
 import torch
 from grid_maps import generate_map
+from models import export_policy
 from rollout import EVAL_EPSILON, VALIDATION_SEED, select_best
+from safety import temporary_path_for, write_json_atomic
 from settings import BatchConfig, SettingError, validated
 from train_config import DEFAULT_OUTPUT_DIR
 from trainer import LAST_WEIGHTS, DQNTrainer
 from vector_env import VectorMultiAgentEnv
 
-from batch.plumbing import (
-    ProgressLine,
-    export_policy,
-    remove_stale_temporaries,
-    run_jobs,
-    save_map,
-    temporary_path_for,
-    write_json_atomic,
-)
+from batch.plumbing import ProgressLine, remove_stale_temporaries, run_jobs, save_map
 
 PROBLEM2 = Path(__file__).resolve().parent.parent
 REPOSITORY = PROBLEM2.parent
@@ -194,7 +188,7 @@ class SavingTrainer(DQNTrainer):
 
     def export_agent(self, index: int, path: Path) -> Path:
         """Write agent ``index``: its network behind the mode's mask
-        (:func:`~batch.plumbing.export_policy`)."""
+        (:func:`~models.export_policy`)."""
         return export_policy(self.online.agent(index), self.mode, path)
 
 

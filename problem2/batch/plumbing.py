@@ -1,16 +1,10 @@
-"""Batch plumbing for problem 2: what a program does first (a console that cannot show
-every character, reproducible matrix products), atomic file writes (under a temporary name in
-the target folder, then ``os.replace`` onto the real name, so an interrupted run never leaves
-a half-written result), stale temporaries, worker processes, the progress line, and the
-policy files: a network behind its observation mask as TorchScript, the same weights giving
-the same bytes anywhere."""
+"""Batch plumbing for the studies and ``make``: the map file, stale temporaries of killed runs,
+worker processes and the progress line. (What every command does first and the atomic writes
+are in ``safety.py``; the policy files in ``models.py``.)"""
 
 from __future__ import annotations
 
 import contextlib
-import hashlib
-import io
-import json
 import multiprocessing as mp
 import os
 import queue
@@ -19,55 +13,13 @@ import signal
 import sys
 import threading
 import time
-import warnings
-import zipfile
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
-import torch
 from grid_maps import check_grid
-from models import MaskedPolicy, MessagingQNetwork, exportable_copy, observation_mask
-from torch import nn
-
-
-def make_console_safe() -> None:
-    """Print '?', not a UnicodeEncodeError, for what a console (Windows' cp1252) cannot show."""
-    for stream in (sys.stdout, sys.stderr):
-        if hasattr(stream, "reconfigure"):
-            stream.reconfigure(errors="replace")
-
-
-def use_reproducible_matmul() -> None:
-    """Make matrix products take MKL's AVX2 code path on every x86 CPU with AVX2 (Intel or
-    AMD, AVX-512 or not; MKL's conditional numerical reproducibility), so a seed trains the
-    same bytes on any of them. Every entry point calls it first: it takes effect at the
-    process's first matrix product, and worker processes inherit it. A value set by the user
-    is kept."""
-    os.environ.setdefault("MKL_CBWR", "AVX2")
-
-
-@contextmanager
-def temporary_path_for(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary sibling of ``path`` (its folder created if needed); move it onto
-    ``path`` if the block succeeds, remove it on error."""
-    final = Path(path)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    temporary = final.with_name(f".{final.name}.tmp.{os.getpid()}")
-    try:
-        yield temporary
-        os.replace(temporary, final)
-    finally:
-        temporary.unlink(missing_ok=True)
-
-
-def write_json_atomic(path: str | Path, data: Any) -> None:
-    """Write ``data`` as indented JSON (with a final newline) to ``path`` atomically."""
-    with temporary_path_for(path) as temporary:
-        text = json.dumps(data, indent=2, allow_nan=False) + "\n"
-        temporary.write_text(text, encoding="utf-8", newline="\n")
+from safety import write_json_atomic
 
 
 def save_map(path: str | Path, grid: np.ndarray) -> None:
@@ -240,67 +192,3 @@ class ProgressLine:
         if self._is_terminal():
             self.stream.write("\n")
             self.stream.flush()
-
-
-# ------------------------------------------------ policy files (TorchScript, byte-stable)
-@contextmanager
-def quiet_torchscript() -> Iterator[None]:
-    """torch 2.13 marks ``torch.jit`` deprecated, but the course requires TorchScript files
-    that load with ``torch.jit.load`` alone, so the warning is expected here."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", r"`torch\.jit\.\w+` is deprecated", DeprecationWarning)
-        yield
-
-
-def export_policy(
-    network: MessagingQNetwork,
-    mask: str | Sequence[float] | np.ndarray | torch.Tensor,
-    path: str | Path,
-) -> Path:
-    """Script ``network`` behind ``mask`` (an ablation name, for any input_dim, or input_dim
-    numbers) and save it atomically with ``torch.jit.save``. ``network`` itself is left
-    untouched (a CPU copy in eval mode is exported). Returns the path written."""
-    input_dim = network.hidden.in_features
-    if isinstance(mask, str):
-        mask = observation_mask(mask, input_dim)
-    elif isinstance(mask, torch.Tensor):
-        mask = mask.detach().cpu().numpy()
-    mask_tensor = torch.from_numpy(np.array(mask, dtype=np.float32)).flatten()  # a copy
-    if mask_tensor.numel() != input_dim:
-        raise ValueError(f"mask has {mask_tensor.numel()} elements; the network takes {input_dim}")
-    return save_scripted(MaskedPolicy(exportable_copy(network), mask_tensor), path)
-
-
-def save_scripted(module: nn.Module, path: str | Path) -> Path:
-    """Script ``module`` and save it atomically, the same weights giving the same bytes
-    anywhere (:func:`without_debug_sources`). Returns the path written."""
-    # Saving to memory first keeps the archive's inner folder name fixed ("archive", not the
-    # temporary file's name), so the same weights always give byte-identical files.
-    buffer = io.BytesIO()
-    with quiet_torchscript():
-        torch.jit.save(torch.jit.script(module), buffer)
-    with temporary_path_for(path) as temporary:
-        temporary.write_bytes(without_debug_sources(buffer.getvalue()))
-    return Path(path)
-
-
-def without_debug_sources(archive: bytes) -> bytes:
-    """Make a TorchScript archive depend on its content only: drop the ``*.debug_pkl``
-    entries (source maps holding this file's absolute path, which ``torch.jit.load`` does not
-    need), and replace the random per-process ``.data/serialization_id`` by 40 digits of a
-    SHA-256 of the other entries, so equal weights give byte-identical files anywhere."""
-    source = zipfile.ZipFile(io.BytesIO(archive))
-    entries = [e for e in source.infolist() if not e.filename.endswith(".debug_pkl")]
-    digest = hashlib.sha256()
-    for entry in entries:
-        if not entry.filename.endswith("serialization_id"):
-            digest.update(entry.filename.encode() + source.read(entry.filename))
-    content_id = str(int(digest.hexdigest(), 16))[:40].zfill(40).encode()
-    output = io.BytesIO()
-    with zipfile.ZipFile(output, "w", zipfile.ZIP_STORED) as stripped:
-        for entry in entries:
-            data = source.read(entry.filename)
-            stripped.writestr(
-                entry, content_id if entry.filename.endswith("serialization_id") else data
-            )
-    return output.getvalue()

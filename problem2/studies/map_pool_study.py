@@ -49,18 +49,12 @@ from analysis.map_sets import (
     VALIDATION_FIRST_SEED,
 )
 from analysis.stats import BOOTSTRAP_RESAMPLES, seed_paired_differences, seed_statistics
-from batch.plumbing import (
-    ProgressLine,
-    make_console_safe,
-    run_jobs,
-    temporary_path_for,
-    use_reproducible_matmul,
-    write_json_atomic,
-)
+from batch.plumbing import ProgressLine, run_jobs
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED
+from safety import make_console_safe, temporary_path_for, use_reproducible_matmul, write_json_atomic
 from settings import MODES, SettingError, available_cores, check_value, int_in, usage, validated
 
 from studies.pool_training import POOL_RULES, PoolConfig, PoolTrainer

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 from analysis.interventions import channel_verdict
-from batch.plumbing import make_console_safe, use_reproducible_matmul, write_json_atomic
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 
 from studies.panel_outputs import plot_effects
 

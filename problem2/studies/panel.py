@@ -47,15 +47,10 @@ from analysis.stats import (
     mode_contrasts,
     spearman_interval,
 )
-from batch.plumbing import (
-    ProgressLine,
-    make_console_safe,
-    run_jobs,
-    use_reproducible_matmul,
-    write_json_atomic,
-)
+from batch.plumbing import ProgressLine, run_jobs
 from grid_maps import DEFAULT_MAP_SEED, OBSTACLE, TARGET
 from rollout import EVAL_EPSILON, EVAL_SEED
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 from settings import available_cores
 
 from studies.panel_behaviour import BEHAVIOUR, beacon_behaviour, mode_behaviour, seed_behaviour

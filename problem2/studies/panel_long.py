@@ -23,8 +23,8 @@ from analysis.pipeline import CONDITIONS, evaluate_experiment
 from analysis.runs import read_experiment
 from analysis.stats import seed_paired_differences, seed_statistics
 from batch.experiments import read_csv, run_experiments
-from batch.plumbing import make_console_safe, use_reproducible_matmul, write_json_atomic
 from rollout import EVAL_EPSILON
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 from settings import BatchConfig
 
 from studies.panel import PANEL_DIR

@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 from analysis.plots import save_figure
-from batch.plumbing import temporary_path_for
 from matplotlib.figure import Figure
+from safety import temporary_path_for
 
 MODE_ORDER = ("independent", "comm", "distance", "full")
 ASSIGNMENT_MAP = 641

@@ -32,9 +32,9 @@ from analysis.evaluator import MultiAgentEvaluator
 from analysis.failures import arrivals
 from analysis.runs import Experiment, load_model_pair, read_experiment
 from analysis.stats import seed_statistics
-from batch.plumbing import use_reproducible_matmul, write_json_atomic
 from grid_maps import DEFAULT_MAP_SEED, TARGET, generate_map
 from rollout import EVAL_EPSILON, EVAL_SEED
+from safety import use_reproducible_matmul, write_json_atomic
 from vector_env import VectorMultiAgentEnv
 
 from studies import joint_dp

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from batch.plumbing import temporary_path_for
+from safety import temporary_path_for
 
 CONDITIONS = ("greedy", "epsilon")  # the evaluation conditions, in the order run
 

@@ -29,8 +29,8 @@ from analysis.episodes import EvaluationSetting, model_policy, recorded_episodes
 from analysis.failures import arrivals
 from analysis.runs import load_map, load_model_pair
 from batch.experiments import read_csv
-from batch.plumbing import use_reproducible_matmul, write_json_atomic
 from rollout import VALIDATION_SEED
+from safety import use_reproducible_matmul, write_json_atomic
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "stability"
 SEEDS = (100, 101, 102, 103)  # training seeds: never the reported 641-650

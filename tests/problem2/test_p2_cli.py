@@ -202,7 +202,7 @@ def test_help_states_units_ranges_path_rule_and_overwrite_rule(tmp_path: Path) -
 
 
 def test_console_without_utf8_gets_replacement_characters_not_a_crash() -> None:
-    code = "from batch import plumbing; plumbing.make_console_safe(); print('ε → ×')"
+    code = "import safety; safety.make_console_safe(); print('ε → ×')"
     env = dict(os.environ, PYTHONIOENCODING="cp1252")
     result = subprocess.run(
         [sys.executable, "-c", code], cwd=PROBLEM2, env=env, capture_output=True, timeout=120

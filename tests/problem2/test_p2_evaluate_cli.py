@@ -23,7 +23,6 @@ from analysis.generalization import models_on_maps
 from analysis.information import MEASURES
 from analysis.interventions import INTERVENTIONS
 from analysis.runs import best_seed, discover_experiments, load_map, sha256_of
-from batch.plumbing import export_policy
 from evaluate import (
     MultiAgentEvaluator,
     create_evaluation_report,
@@ -31,7 +30,7 @@ from evaluate import (
     main,
     parse_args,
 )
-from models import AgentDQN, DuelingDQN
+from models import AgentDQN, DuelingDQN, export_policy
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, run_episodes
 from vector_env import VectorMultiAgentEnv

@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 import torch
 from analysis.runs import load_policy
-from batch.plumbing import export_policy
-from models import MASKED_INPUTS, AgentDQN, DuelingDQN, observation_mask
+from models import MASKED_INPUTS, AgentDQN, DuelingDQN, export_policy, observation_mask
 
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.\\w+` is deprecated:DeprecationWarning")
 
@@ -138,7 +137,7 @@ def test_export_is_byte_identical_across_processes(tmp_path: Path) -> None:
     # torch writes a random serialization id per process; the export replaces it by a hash.
     script = (
         "import sys, torch; torch.manual_seed(3)\n"
-        "from models import AgentDQN\nfrom batch.plumbing import export_policy\n"
+        "from models import AgentDQN, export_policy\n"
         "export_policy(AgentDQN(), 'full', sys.argv[1])\n"
     )
     problem2 = Path(__file__).resolve().parents[2] / "problem2"
@@ -164,7 +163,7 @@ print(os.environ.get("MKL_CBWR"), digest)
 
 
 def test_reproducible_matmul_gives_the_bytes_of_mkl_cbwr_avx2_and_import_sets_nothing() -> None:
-    """A process that calls batch.plumbing.use_reproducible_matmul() before its first matrix
+    """A process that calls safety.use_reproducible_matmul() before its first matrix
     product computes the bytes of a process started with MKL_CBWR=AVX2, whatever the CPU's own
     code path; importing the modules alone changes no environment variable."""
     problem2 = str(Path(__file__).resolve().parents[2] / "problem2")
@@ -181,8 +180,8 @@ def test_reproducible_matmul_gives_the_bytes_of_mkl_cbwr_avx2_and_import_sets_no
         )
         return result.stdout.strip()
 
-    assert run("import models\nfrom batch import plumbing", clean).startswith("None ")
-    called = run("from batch import plumbing\nplumbing.use_reproducible_matmul()", clean)
+    assert run("import models\nimport safety", clean).startswith("None ")
+    called = run("import safety\nsafety.use_reproducible_matmul()", clean)
     assert called.startswith("AVX2 ")
     assert called == run("", clean | {"MKL_CBWR": "AVX2"})
 

@@ -15,9 +15,9 @@ from analysis.baselines import random_policy
 from analysis.episodes import recorded_episodes
 from analysis.runs import sha256_of
 from analysis.stats import seed_statistics
-from batch.plumbing import export_policy, save_map
+from batch.plumbing import save_map
 from grid_maps import generate_map
-from models import AgentDQN
+from models import AgentDQN, export_policy
 from studies import joint_dp, reward_study
 from vector_env import VectorMultiAgentEnv
 

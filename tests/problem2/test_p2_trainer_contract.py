@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 import torch
 from analysis.runs import load_policy
-from batch.plumbing import export_policy
-from models import observation_mask
+from models import export_policy, observation_mask
 from multi_agent_env import MultiAgentEnv
 from rollout import VALIDATION_SEED, select_best
 from settings import validated

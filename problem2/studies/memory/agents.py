@@ -19,8 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from batch.plumbing import save_scripted
-from models import MESSAGE_INDEX, OBSERVATION_DIM, observation_mask
+from models import MESSAGE_INDEX, OBSERVATION_DIM, observation_mask, save_scripted
 from rollout import PolicyFn
 from torch import nn
 from torch.nn import functional as F
@@ -125,7 +124,7 @@ class RecurrentPolicy(nn.Module):
 
 def export_recurrent(network: RecurrentQNetwork, path: str | Path) -> Path:
     """Script ``network`` as a :class:`RecurrentPolicy` and save it atomically
-    (:func:`batch.plumbing.save_scripted`: equal weights give byte-identical files)."""
+    (:func:`models.save_scripted`: equal weights give byte-identical files)."""
     return save_scripted(RecurrentPolicy(network.cpu()).eval(), path)
 
 

@@ -25,14 +25,9 @@ from typing import Any
 import numpy as np
 import torch
 from analysis.stats import seed_statistics
-from batch.plumbing import (
-    ProgressLine,
-    make_console_safe,
-    run_jobs,
-    use_reproducible_matmul,
-    write_json_atomic,
-)
+from batch.plumbing import ProgressLine, run_jobs
 from multi_agent_env import MultiAgentEnv
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 from settings import SettingError, available_cores, usage, validated
 
 from studies.memory.learner import Levers, RecurrentTrainer

@@ -35,16 +35,11 @@ from analysis.failures import homing_shares
 from analysis.map_sets import HELD_OUT_MAP_SEEDS
 from analysis.runs import load_policy
 from analysis.stats import seed_paired_differences, seed_statistics
-from batch.plumbing import (
-    ProgressLine,
-    make_console_safe,
-    run_jobs,
-    use_reproducible_matmul,
-    write_json_atomic,
-)
+from batch.plumbing import ProgressLine, run_jobs
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 from settings import SettingError, available_cores, check_value, int_in, usage, validated
 
 from studies import map_pool_study

@@ -22,9 +22,8 @@ from pathlib import Path
 import numpy as np
 import torch
 from batch.experiments import SavingTrainer
-from batch.plumbing import save_scripted
 from grid_maps import NUM_ACTIONS, check_step
-from models import MessagingQNetwork, exportable_copy, observation_mask
+from models import MessagingQNetwork, exportable_copy, observation_mask, save_scripted
 from torch import nn
 from torch.nn import functional as F
 from vector_env import VectorMultiAgentEnv
@@ -144,7 +143,7 @@ def export_one_step(
     network: MessagingQNetwork, mode: str, path: str | Path, keep: tuple[str, ...] = MEMORY_PARTS
 ) -> Path:
     """Script ``network`` (input 27) as a :class:`OneStepMemoryPolicy` of ``mode`` and save
-    it atomically (``batch.plumbing.save_scripted``: equal weights give byte-identical files)."""
+    it atomically (``models.save_scripted``: equal weights give byte-identical files)."""
     return save_scripted(OneStepMemoryPolicy(network, mode, keep), path)
 
 

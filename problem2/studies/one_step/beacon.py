@@ -39,8 +39,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from batch.plumbing import save_scripted
-from models import MessagingQNetwork
+from models import MessagingQNetwork, save_scripted
 from multi_agent_env import MultiAgentEnv
 from settings import boolean, number_in
 from torch import nn

@@ -20,11 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from batch.plumbing import (
-    make_console_safe,
-    use_reproducible_matmul,
-    write_json_atomic,
-)
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 
 from studies.memory import study as gru_study
 from studies.one_step import unseen

@@ -34,16 +34,11 @@ from analysis.held_out import held_out_maps
 from analysis.map_sets import HELD_OUT_MAP_SEEDS
 from analysis.runs import load_policy
 from analysis.stats import seed_statistics
-from batch.plumbing import (
-    ProgressLine,
-    make_console_safe,
-    run_jobs,
-    use_reproducible_matmul,
-    write_json_atomic,
-)
+from batch.plumbing import ProgressLine, run_jobs
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 from settings import available_cores
 from vector_env import VectorMultiAgentEnv
 

@@ -33,14 +33,9 @@ from analysis.baselines import int_list
 from analysis.episodes import explore_by_step, model_policy
 from analysis.stats import BOOTSTRAP_RESAMPLES, CONFIDENCE, mode_contrasts, seed_statistics
 from batch.experiments import run_experiments
-from batch.plumbing import (
-    ProgressLine,
-    make_console_safe,
-    run_jobs,
-    use_reproducible_matmul,
-    write_json_atomic,
-)
+from batch.plumbing import ProgressLine, run_jobs
 from rollout import EVAL_EPSILON, EVAL_SEED, PolicyFn, run_episodes
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 from settings import BatchConfig, available_cores
 from vector_env import VectorMultiAgentEnv
 

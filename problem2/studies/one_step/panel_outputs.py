@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 from analysis.plots import save_figure
-from batch.plumbing import temporary_path_for
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
+from safety import temporary_path_for
 
 MODE_LABELS = {"independent": "ind", "comm": "comm", "distance": "dist", "full": "full"}
 MODE_COLORS = {

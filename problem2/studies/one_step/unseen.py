@@ -31,15 +31,10 @@ from typing import Any
 import torch
 from analysis.runs import load_policy
 from analysis.stats import seed_statistics
-from batch.plumbing import (
-    ProgressLine,
-    make_console_safe,
-    run_jobs,
-    use_reproducible_matmul,
-    write_json_atomic,
-)
+from batch.plumbing import ProgressLine, run_jobs
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 from settings import available_cores, validated
 
 from studies import map_pool_study

@@ -37,10 +37,10 @@ from analysis.episodes import recorded_episodes
 from analysis.plots import EpisodeTrace, draw_map, draw_paths, episode_trace, save_figure
 from analysis.stats import seed_statistics
 from batch.experiments import run_experiments
-from batch.plumbing import make_console_safe, use_reproducible_matmul, write_json_atomic
 from grid_maps import TARGET
 from matplotlib.figure import Figure
 from rollout import EVAL_SEED, run_episodes
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 from settings import BatchConfig, available_cores
 from vector_env import VectorMultiAgentEnv
 
