@@ -46,7 +46,7 @@ def measure(repo: Path, updates: int) -> dict[str, float]:
     torch.set_num_threads(1)
     sys.path.insert(0, str(repo / "problem2"))
     from multi_agent_env import MultiAgentEnv
-    from train_config import TrainConfig
+    from settings import TrainConfig
 
     try:  # the core learner; older checkouts named their trainer MultiAgentTrainer
         from trainer import DQNTrainer as Trainer

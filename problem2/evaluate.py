@@ -32,6 +32,8 @@ from pathlib import Path
 from typing import Any
 
 import safety  # noqa: F401  (first: checks the packages, stdlib only)
+from safety import make_console_safe, use_reproducible_matmul
+
 import torch
 from analysis.evaluator import MultiAgentEvaluator
 from analysis.outputs import write_outputs
@@ -47,7 +49,6 @@ from analysis.runs import (
 )
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON
-from safety import make_console_safe, use_reproducible_matmul
 
 __all__ = ["MultiAgentEvaluator", "create_evaluation_report", "load_trained_models", "main"]
 DEFAULT_CHECKPOINT = DEFAULT_ROOT / "agent_models"

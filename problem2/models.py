@@ -18,10 +18,11 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
+from safety import temporary_path_for
+
 import numpy as np
 import torch
 from grid_maps import positive_int
-from safety import temporary_path_for
 from torch import nn
 
 OBSERVATION_DIM = 11  # the default 3 x 3 window: 9 cells, message, distance

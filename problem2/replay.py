@@ -1,4 +1,5 @@
 """Experience replay of the two agents' joint transitions, and the batch the learner reads.
+The course's ``replay_buffer.ReplayBuffer`` is this buffer.
 
 A transition holds the course's ten fields (s_A, s_B, a_A, a_B, c_A, c_B, r, s'_A, s'_B, done)
 and any extras the learner stores with them (the trainer: the observations one step before s
@@ -14,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from grid_maps import positive_int
+from grid_maps import NUM_ACTIONS, positive_int
 
 TRANSITION_FIELDS = (
     "state_A",
@@ -35,16 +36,79 @@ def stored_name(field: str) -> str:
     return field[:-2] if field.endswith(("_A", "_B")) else field
 
 
+STATE_FIELDS = ("state_A", "state_B", "next_state_A", "next_state_B")
+
+
+def check_transitions(arrays: dict[str, np.ndarray]) -> None:
+    """Refuse B transitions whose required fields are malformed, naming the field: states
+    not (B, D) finite with one D for all four, actions not integers in 0..NUM_ACTIONS-1,
+    messages outside [0, 1], rewards not finite, done not boolean (bool or 0/1)."""
+    states = [arrays[name] for name in STATE_FIELDS]
+    for name, value in zip(STATE_FIELDS, states, strict=True):
+        if value.ndim != 2 or value.shape[1] == 0 or value.shape[1:] != states[0].shape[1:]:
+            raise ValueError(
+                f"{name} must be one observation vector per transition with the size of "
+                f"state_A {states[0].shape[1:]}, got per-transition shape {value.shape[1:]}"
+            )
+        if not np.issubdtype(value.dtype, np.number) or not np.isfinite(value).all():
+            raise ValueError(f"{name} must hold finite numbers")
+    for name in TRANSITION_FIELDS:
+        if name not in STATE_FIELDS and arrays[name].ndim != 1:
+            raise ValueError(
+                f"{name} must be one number per transition, got per-transition shape "
+                f"{arrays[name].shape[1:]}"
+            )
+    for name in ("action_A", "action_B"):
+        value = arrays[name]
+        numeric = np.issubdtype(value.dtype, np.number) and value.dtype != np.bool_
+        if not (numeric and np.all(np.mod(value, 1) == 0)):
+            raise ValueError(f"{name} must be integer actions, got {value[:5].tolist()}")
+        if value.min() < 0 or value.max() >= NUM_ACTIONS:
+            raise ValueError(f"{name} must lie in 0..{NUM_ACTIONS - 1}, got {value[:5].tolist()}")
+    for name in ("comm_A", "comm_B"):
+        value = arrays[name]
+        if not np.issubdtype(value.dtype, np.number) or not ((value >= 0) & (value <= 1)).all():
+            raise ValueError(f"{name} must be a message in [0, 1], got {value[:5].tolist()}")
+    reward = arrays["reward"]
+    if not np.issubdtype(reward.dtype, np.number) or not np.isfinite(reward).all():
+        raise ValueError(f"reward must be a finite number, got {reward[:5].tolist()}")
+    done = arrays["done"]
+    if done.dtype != np.bool_ and not (
+        np.issubdtype(done.dtype, np.number) and np.isin(done, (0, 1)).all()
+    ):
+        raise ValueError(f"done must be boolean (True/False or 0/1), got {done[:5].tolist()}")
+
+
+def as_array(name: str, value: object) -> np.ndarray:
+    """``value`` as an array; a tensor that requires grad is refused by name."""
+    if type(value) is np.ndarray:  # the common case, nothing to convert or check
+        return value
+    if getattr(value, "requires_grad", False):
+        raise ValueError(
+            f"{name} is a tensor that requires grad; store a plain number (.item() or .detach())"
+        )
+    try:
+        return np.asarray(value)
+    except (TypeError, ValueError, RuntimeError) as error:
+        raise ValueError(f"{name} is not an array of numbers: {error}") from error
+
+
 class ReplayBuffer:
     """Uniform replay over the last ``capacity`` joint transitions; ``seed`` seeds sampling.
 
-    The first push fixes the fields and their shapes (actions int64, the rest float32). One
-    way in, :meth:`push_batch`; one way out, :meth:`get`. The course's
-    ``replay_buffer.ReplayBuffer`` adds ``push``, ``sample`` and checks of hand-made pushes.
+    The first push fixes the fields and their shapes (actions int64, the rest float32). The
+    learner pushes many at once (:meth:`push_batch`) and reads by slot (:meth:`get`); the
+    course's interface pushes one (:meth:`push`, every value checked) and samples the ten
+    fields (:meth:`sample`). A learner's buffer (``gamma`` given) also keeps, per transition,
+    the n-step discount and the observations one step before s and s' (DIAL); a transition
+    pushed by hand gets them as a one-step transition without a previous observation.
     """
 
-    def __init__(self, capacity: int = 10000, seed: int | None = None) -> None:
+    def __init__(
+        self, capacity: int = 10000, seed: int | None = None, gamma: float | None = None
+    ) -> None:
         self.capacity = positive_int(capacity, "capacity")
+        self.gamma = gamma
         self._rng = np.random.default_rng(seed)
         # stored name -> (capacity, ...), or (2, capacity, ...) for a pair of agent fields
         self._arrays: dict[str, np.ndarray] = {}
@@ -69,7 +133,6 @@ class ReplayBuffer:
                 "every field needs the same non-zero leading (batch) dimension; "
                 f"got shapes { {name: a.shape for name, a in arrays.items()} }"
             )
-        self._check_transitions(arrays)
         if not self._arrays:
             self._allocate(arrays)
         self._check_like_first_push(arrays)
@@ -84,6 +147,57 @@ class ReplayBuffer:
         self._size = min(self._size + count, self.capacity)
         self._stored(slots)
         return slots
+
+    def push(
+        self,
+        state_A,
+        state_B,
+        action_A,
+        action_B,
+        comm_A,
+        comm_B,
+        reward,
+        next_state_A,
+        next_state_B,
+        done,
+        **extras,
+    ) -> None:
+        """Store one transition: states (obs_dim,), the rest scalars; ``extras`` likewise
+        one transition's worth each."""
+        values = (state_A, state_B, action_A, action_B, comm_A, comm_B, reward)
+        values += (next_state_A, next_state_B, done)
+        fields = dict(zip(TRANSITION_FIELDS, values, strict=True)) | extras
+        arrays = {name: as_array(name, value)[None] for name, value in fields.items()}
+        check_transitions(arrays)
+        if self.gamma is not None and not extras:  # the learner's fields of a one-step push
+            arrays |= self.one_step_fields(arrays)
+        self.push_batch(**arrays)
+
+    def one_step_fields(self, arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """What the learner keeps beside the ten fields, for one-step transitions without a
+        previous observation: d = γ (1 − done), s' bootstrapped from s, no DIAL splice."""
+        done = arrays["done"].astype(np.float32)
+        return {
+            "discount": (self.gamma * (1.0 - done)).astype(np.float32),
+            "has_prev": np.zeros_like(done),
+            **{f"last_state_{a}": arrays[f"state_{a}"] for a in "AB"},
+            **{f"prev_state_{a}": np.zeros_like(arrays[f"state_{a}"]) for a in "AB"},
+        }
+
+    def sample(self, batch_size: int) -> tuple[np.ndarray, ...]:
+        """Uniform sample with replacement: the ten required arrays in interface order,
+        states (B, obs_dim) float32, actions (B,) int64, the rest (B,) float32."""
+        return self.fields_at(self.sample_indices(batch_size))
+
+    def fields_at(self, indices: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The ten required fields at slots ``indices``, in interface order."""
+        stored = self.get(indices)
+        return tuple(
+            stored[stored_name(name)]["AB".index(name[-1])]
+            if name.endswith(("_A", "_B"))
+            else stored[name]
+            for name in TRANSITION_FIELDS
+        )
 
     def _allocate(self, arrays: dict[str, np.ndarray]) -> None:
         """Fix the fields by those of the first push, with their per-transition shapes."""
@@ -107,9 +221,6 @@ class ReplayBuffer:
             shape = stored.shape[2:] if name.endswith(("_A", "_B")) else stored.shape[1:]
             if value.shape[1:] != shape:
                 raise ValueError(f"{name} has per-transition shape {value.shape[1:]}, not {shape}")
-
-    def _check_transitions(self, arrays: dict[str, np.ndarray]) -> None:
-        """Hook: check a push's values (the course's buffer does; the trainer's come checked)."""
 
     def _stored(self, slots: np.ndarray) -> None:
         """Called with the slots of every push (prioritised replay sets their priority)."""

@@ -1,125 +1,17 @@
 """Experience replay for the two agents' joint transitions (s_A, s_B, a_A, a_B, c_A, c_B, r,
-s'_A, s'_B, done): the course's file. ``ReplayBuffer`` is the core's uniform buffer
-(``replay.py``, the one the trainer learns from) with the course's ``push`` and ``sample`` and
-the checks of what a caller pushes by hand; ``PrioritizedReplayBuffer`` samples by
-priority^alpha (course interface; no training run uses it).
+s'_A, s'_B, done): the course's file. ``ReplayBuffer`` is the uniform buffer the learner
+learns from (``replay.py``), with the course's ``push`` and ``sample`` and the checks of what
+a caller pushes by hand; ``PrioritizedReplayBuffer`` samples by priority^alpha (course
+interface; no training run uses it).
 """
 
 from __future__ import annotations
 
 import numpy as np
-import replay
-from grid_maps import NUM_ACTIONS, positive_int
-from replay import TRANSITION_FIELDS, stored_name
+from grid_maps import positive_int
+from replay import TRANSITION_FIELDS, ReplayBuffer
 
 __all__ = ["TRANSITION_FIELDS", "PrioritizedReplayBuffer", "ReplayBuffer", "SumTree"]
-
-
-STATE_FIELDS = ("state_A", "state_B", "next_state_A", "next_state_B")
-
-
-def check_transitions(arrays: dict[str, np.ndarray]) -> None:
-    """Refuse B transitions whose required fields are malformed, naming the field: states
-    not (B, D) finite with one D for all four, actions not integers in 0..NUM_ACTIONS-1,
-    messages outside [0, 1], rewards not finite, done not boolean (bool or 0/1)."""
-    states = [arrays[name] for name in STATE_FIELDS]
-    for name, value in zip(STATE_FIELDS, states, strict=True):
-        if value.ndim != 2 or value.shape[1] == 0 or value.shape[1:] != states[0].shape[1:]:
-            raise ValueError(
-                f"{name} must be one observation vector per transition with the size of "
-                f"state_A {states[0].shape[1:]}, got per-transition shape {value.shape[1:]}"
-            )
-        if not np.issubdtype(value.dtype, np.number) or not np.isfinite(value).all():
-            raise ValueError(f"{name} must hold finite numbers")
-    for name in TRANSITION_FIELDS:
-        if name not in STATE_FIELDS and arrays[name].ndim != 1:
-            raise ValueError(
-                f"{name} must be one number per transition, got per-transition shape "
-                f"{arrays[name].shape[1:]}"
-            )
-    for name in ("action_A", "action_B"):
-        value = arrays[name]
-        numeric = np.issubdtype(value.dtype, np.number) and value.dtype != np.bool_
-        if not (numeric and np.all(np.mod(value, 1) == 0)):
-            raise ValueError(f"{name} must be integer actions, got {value[:5].tolist()}")
-        if value.min() < 0 or value.max() >= NUM_ACTIONS:
-            raise ValueError(f"{name} must lie in 0..{NUM_ACTIONS - 1}, got {value[:5].tolist()}")
-    for name in ("comm_A", "comm_B"):
-        value = arrays[name]
-        if not np.issubdtype(value.dtype, np.number) or not ((value >= 0) & (value <= 1)).all():
-            raise ValueError(f"{name} must be a message in [0, 1], got {value[:5].tolist()}")
-    reward = arrays["reward"]
-    if not np.issubdtype(reward.dtype, np.number) or not np.isfinite(reward).all():
-        raise ValueError(f"reward must be a finite number, got {reward[:5].tolist()}")
-    done = arrays["done"]
-    if done.dtype != np.bool_ and not (
-        np.issubdtype(done.dtype, np.number) and np.isin(done, (0, 1)).all()
-    ):
-        raise ValueError(f"done must be boolean (True/False or 0/1), got {done[:5].tolist()}")
-
-
-def as_array(name: str, value: object) -> np.ndarray:
-    """``value`` as an array; a tensor that requires grad is refused by name."""
-    if type(value) is np.ndarray:  # the common case, nothing to convert or check
-        return value
-    if getattr(value, "requires_grad", False):
-        raise ValueError(
-            f"{name} is a tensor that requires grad; store a plain number (.item() or .detach())"
-        )
-    try:
-        return np.asarray(value)
-    except (TypeError, ValueError, RuntimeError) as error:
-        raise ValueError(f"{name} is not an array of numbers: {error}") from error
-
-
-class ReplayBuffer(replay.ReplayBuffer):
-    """The core's uniform buffer (:class:`replay.ReplayBuffer`) with the course's interface:
-    :meth:`push` one transition, :meth:`sample` the ten fields; every push is checked
-    (:func:`check_transitions`), so a malformed transition is refused by name."""
-
-    def push(
-        self,
-        state_A,
-        state_B,
-        action_A,
-        action_B,
-        comm_A,
-        comm_B,
-        reward,
-        next_state_A,
-        next_state_B,
-        done,
-        **extras,
-    ) -> None:
-        """Store one transition: states (obs_dim,), the rest scalars; ``extras`` likewise
-        one transition's worth each."""
-        values = (state_A, state_B, action_A, action_B, comm_A, comm_B, reward)
-        values += (next_state_A, next_state_B, done)
-        fields = dict(zip(TRANSITION_FIELDS, values, strict=True)) | extras
-        self.push_batch(**{name: as_array(name, value)[None] for name, value in fields.items()})
-
-    def push_batch(self, **arrays: np.ndarray) -> np.ndarray:
-        """:meth:`replay.ReplayBuffer.push_batch` of the fields as arrays (a tensor that
-        requires grad refused by name), each push's values checked (:func:`check_transitions`)."""
-        return super().push_batch(**{name: as_array(name, v) for name, v in arrays.items()})
-
-    def _check_transitions(self, arrays: dict[str, np.ndarray]) -> None:
-        check_transitions(arrays)
-
-    def sample(self, batch_size: int) -> tuple[np.ndarray, ...]:
-        """Uniform sample with replacement: the ten required arrays in interface order,
-        states (B, obs_dim) float32, actions (B,) int64, the rest (B,) float32."""
-        return self.fields_at(self.sample_indices(batch_size))
-
-    def fields_at(self, indices: np.ndarray) -> tuple[np.ndarray, ...]:
-        """The ten required fields at slots ``indices``, in interface order."""
-        stored = self.get(indices)
-        return tuple(
-            stored[stored_name(name)]["AB".index(name[-1])]
-            if name.endswith(("_A", "_B"))
-            else stored[name]
-            for name in TRANSITION_FIELDS
-        )
 
 
 class SumTree:

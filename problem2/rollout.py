@@ -199,9 +199,9 @@ class NStepWindow:
             "next_state_B": next_obs[env, 1],
             "done": done.astype(np.float32),
             "discount": np.where(done, 0.0, self.discounts[lag + 1]).astype(np.float32),
+            "last_state_A": obs[env, 0],
+            "last_state_B": obs[env, 1],
         }
-        if n > 1:
-            complete |= {"last_state_A": obs[env, 0], "last_state_B": obs[env, 1]}
         return complete
 
 

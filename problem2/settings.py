@@ -1,26 +1,32 @@
-"""The settings of a batch of training runs and the rule of every setting, checked before any
-work starts. :class:`BatchConfig` is ``train_config.TrainConfig`` (what one run reads) with
-the batch's modes, seeds, map and processes: ``python train.py`` takes one, a flag per field.
-``RULES`` gives each field its allowed range; a check maps a value to None (allowed) or to
-the problem, phrased with the allowed range ("must be an integer >= 1"); :func:`validated`
-raises :class:`SettingError` with every problem found, each naming its field (the flag
-``--name``). The command line, the batch and the studies call it; the trainer takes a
-checked config."""
+"""Every setting of a training run, declared once: its default, its meaning and its allowed
+range, in one field of :class:`TrainConfig`. ``train.py`` makes a flag of each field
+(``--num_episodes`` or ``--num-episodes``, the help, the default); :func:`validated` checks
+every field with the check it was declared with, then the relations between fields, and
+raises :class:`SettingError` naming each bad field, its value and its allowed range before
+any work starts. A check maps a value to None (allowed) or to the problem ("must be an
+integer >= 1")."""
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
+import difflib
 import math
 import os
-from collections.abc import Callable, Collection, Sequence
+import sys
+from collections.abc import Callable, Collection
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from safety import DEFAULT_OUTPUT_DIR
+
 from grid_maps import generate_map, is_integer
 from rollout import SELECT_BY
-from train_config import TRAINABLE_MODES, TrainConfig, setting
+from vector_env import REWARD_MODES
 
 MODES = ("independent", "comm", "full")  # the assignment's ablation: --mode all
+TRAINABLE_MODES = (*MODES, "distance")  # distance: patch + distance, the map panel's 2 x 2
 MAX_SEED = 2**32 - 1
 MAX_GRID_SIDE = 100
 RUN_ONLY_FIELDS = ("output_dir", "workers", "overwrite")  # where and how, not what
@@ -29,6 +35,309 @@ Check = Callable[[Any], str | None]
 Problem = tuple[str, str, Any]  # (field name, what is wrong, the value)
 
 
+# ------------------------------------------------------------------ the checks
+def int_in(low: int, high: int | None = None) -> Check:
+    allowed = f"an integer >= {low}" if high is None else f"an integer in {low}..{high}"
+
+    def check(value: Any) -> str | None:
+        ok = is_integer(value) and value >= low and (high is None or value <= high)
+        return None if ok else f"must be {allowed}"
+
+    return check
+
+
+def number_in(low: float, high: float, low_open: bool = False, high_open: bool = False) -> Check:
+    left, right = "(" if low_open else "[", ")" if high_open else "]"
+    shown_high = "inf)" if math.isinf(high) else f"{high:g}{right}"
+    allowed = f"a finite number in {left}{low:g}, {shown_high}"
+
+    def check(value: Any) -> str | None:
+        ok = (
+            isinstance(value, (int, float))
+            and not isinstance(value, bool)
+            and math.isfinite(value)
+            and (value > low if low_open else value >= low)
+            and (value < high if high_open else value <= high)
+        )
+        return None if ok else f"must be {allowed}"
+
+    return check
+
+
+POSITIVE = number_in(0.0, math.inf, low_open=True, high_open=True)
+NON_NEGATIVE = number_in(0.0, math.inf, high_open=True)
+FRACTION = number_in(0.0, 1.0)
+
+
+def one_of(*choices: str) -> Check:
+    return lambda value: None if value in choices else f"must be one of {', '.join(choices)}"
+
+
+def boolean(value: Any) -> str | None:
+    return None if isinstance(value, bool) else "must be True or False"
+
+
+def folder(value: Any) -> str | None:
+    if not isinstance(value, (str, os.PathLike)) or not str(value):
+        return "must be a folder path"
+    return "must be a folder, not a file" if Path(value).is_file() else None
+
+
+def mode_list(value: Any) -> str | None:
+    """``all`` or a comma-separated list of distinct trainable modes."""
+    if value == "all":
+        return None
+    chosen = value.split(",") if isinstance(value, str) and value else []
+    if chosen and set(chosen) <= set(TRAINABLE_MODES) and len(set(chosen)) == len(chosen):
+        return None
+    shown = ", ".join(TRAINABLE_MODES)
+    return f"must be all or a comma-separated list of distinct modes from {shown}"
+
+
+def distinct_seeds(value: Any) -> str | None:
+    ok = (
+        isinstance(value, (list, tuple))
+        and all(is_integer(v) and 0 <= v <= MAX_SEED for v in value)
+        and len(set(value)) == len(value)
+    )
+    return None if ok else f"must be distinct integers in 0..{MAX_SEED}"
+
+
+def grid_sides(value: Any) -> str | None:
+    """An integer in 3..MAX_GRID_SIDE, or a list of one or two (rows and columns)."""
+    values = value if isinstance(value, list) else [value]
+    ok = len(values) in (1, 2) and all(is_integer(v) and 3 <= v <= MAX_GRID_SIDE for v in values)
+    return None if ok else f"must be one or two integers in 3..{MAX_GRID_SIDE}"
+
+
+def decay_factor(value: Any) -> str | None:
+    """0 (the linear schedule) or the skeleton's multiplicative factor in (0, 1)."""
+    zero = value == 0 and not isinstance(value, bool)
+    if zero or number_in(0.0, 1.0, low_open=True, high_open=True)(value) is None:
+        return None
+    return (
+        "must be 0 (linear schedule) or a multiplicative factor per episode in (0, 1), e.g. 0.995"
+    )
+
+
+def available_cores() -> int:
+    """Cores this process may run on (the affinity mask where the OS has one)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
+
+
+def setting(
+    default: Any, help: str, check: Check, items: tuple[Callable[[str], Any], str] | None = None
+) -> Any:
+    """A dataclass field declared once: its default, its one-line ``help`` and its ``check``;
+    ``items`` = (item type, metavar) makes its flag a list flag. A list default, or a function
+    (e.g. the core count), is built anew for each config."""
+    metadata = {"help": help, "check": check, "items": items}
+    if callable(default):
+        return field(default_factory=default, metadata=metadata)
+    if isinstance(default, list):
+        return field(default_factory=lambda: list(default), metadata=metadata)
+    return field(default=default, metadata=metadata)
+
+
+# ------------------------------------------------------------------ the settings
+@dataclass
+class TrainConfig:
+    """The settings of a batch of runs: every (mode, seed) of ``run_modes()`` x
+    ``run_seeds()`` on one map, in ``workers`` processes; one run reads them with its own
+    ``mode`` and ``seed``."""
+
+    mode: str = setting(
+        "all",
+        "independent (patch), comm (+ message), full (+ distance), all (these three) or a list; "
+        "distance (patch + distance) only when listed",
+        mode_list,
+        items=(str, "MODE"),
+    )
+    seed: int = setting(
+        641,
+        "first training seed (seed, seed + 1, ... unless --seeds is given)",
+        int_in(0, MAX_SEED),
+    )
+    num_seeds: int = setting(10, "number of training seeds per mode (1 or more)", int_in(1))
+    seeds: list[int] = setting(
+        [],
+        "explicit distinct training seeds (override --seed and --num_seeds)",
+        distinct_seeds,
+        items=(int, "SEED"),
+    )
+    map_seed: int = setting(
+        641, "seed of the map (obstacles and target) every run trains on", int_in(0, MAX_SEED)
+    )
+    grid_size: int | list[int] = setting(
+        10,
+        "grid side (--grid_size 10) or rows and columns (--grid_size 10 10)",
+        grid_sides,
+        items=(int, "N"),
+    )
+    max_steps: int = setting(
+        50, "episode time limit (a cut-off: the TD target bootstraps through it)", int_in(1)
+    )
+    reward_mode: str = setting(
+        "goal",
+        "team reward learned from (vector_env.team_rewards): goal (+10 / -0.1), per_step "
+        "(the assignment's +10 / +2 / -0.1) or arrival (+2 on an agent's first arrival)",
+        one_of(*REWARD_MODES),
+    )
+    total_steps: int = setting(
+        300_000, "env steps per run, summed over the parallel environments", int_in(1)
+    )
+    num_episodes: int = setting(
+        0, "if > 0, train this many episodes instead of --total_steps", int_in(0)
+    )
+    num_envs: int = setting(64, "parallel environments that collect experience", int_in(1))
+    batch_size: int = setting(128, "transitions per gradient update", int_in(1))
+    lr: float = setting(5e-4, "Adam learning rate at the start (finite, > 0)", POSITIVE)
+    lr_end_factor: float = setting(
+        0.03, "final learning rate, as a fraction of lr (linear decay)", FRACTION
+    )
+    gamma: float = setting(0.99, "discount factor, in [0, 1)", number_in(0.0, 1.0, high_open=True))
+    n_step: int = setting(
+        3, "rewards in each TD target (fewer where the episode ends first)", int_in(1)
+    )
+    epsilon_start: float = setting(1.0, "initial exploration rate, in [0, 1]", FRACTION)
+    epsilon_end: float = setting(0.05, "final exploration rate, in [0, epsilon_start]", FRACTION)
+    epsilon_decay: float = setting(
+        0.0,
+        "the skeleton's multiplicative factor in (0, 1): epsilon <- max(epsilon_end, epsilon * "
+        "factor) after each finished episode; 0 = linear schedule",
+        decay_factor,
+    )
+    epsilon_fraction: float = setting(
+        0.3,
+        "with --epsilon_decay 0: fraction of the run over which epsilon falls linearly",
+        number_in(0.0, 1.0, low_open=True),
+    )
+    hidden_dim: int = setting(128, "units of the hidden layer", int_in(1))
+    target_update: int = setting(
+        0,
+        "gradient updates (not episodes, not env steps) between hard copies into the target "
+        "networks; 0 = a soft update at --target_tau",
+        int_in(0),
+    )
+    target_tau: float = setting(
+        0.005,
+        "with --target_update 0: fraction of the way to the online network each target "
+        "network moves after every update",
+        number_in(0.0, 1.0, low_open=True),
+    )
+    buffer_size: int = setting(
+        100_000, "replay capacity, joint transitions (>= batch_size)", int_in(1)
+    )
+    learning_starts: int = setting(
+        5_000, "env steps before the first update (>= batch_size)", int_in(0)
+    )
+    updates_per_step: int = setting(
+        2, "gradient updates per step of the parallel environments", int_in(1)
+    )
+    max_grad_norm: float = setting(10.0, "gradient-norm clipping threshold (finite, > 0)", POSITIVE)
+    advantage_learning: float = setting(
+        0.95,
+        "alpha of advantage learning (Bellemare et al. 2016): the target minus alpha (max_b "
+        "Q(s, b) - Q(s, a)) widens the action gaps; 0 = plain Double DQN",
+        number_in(0.0, 1.0, high_open=True),
+    )
+    advantage_learning_ramp: float = setting(
+        0.3, "fraction of the run for alpha to rise from 0", number_in(0.0, 1.0, low_open=True)
+    )
+    comm_learning: str = setting(
+        "dial",
+        "dial: train the message head through the partner's TD loss; none: leave it untrained",
+        one_of("dial", "none"),
+    )
+    comm_noise: float = setting(
+        1.0, "std of the Gaussian noise on the message logit (DIAL)", NON_NEGATIVE
+    )
+    target_potential: float = setting(
+        4.0,
+        "potential-based shaping seen by learning only (Ng et al. 1999): Phi per agent on the "
+        "target, adding gamma Phi(s') - Phi(s); 0 = none",
+        NON_NEGATIVE,
+    )
+    potential_credit: str = setting(
+        "agent",
+        "whose arrivals the shaping pays each agent for: agent (its own; Devlin and Kudenko "
+        "2011) or team (both agents')",
+        one_of("agent", "team"),
+    )
+    eval_interval: int = setting(10_000, "env steps between periodic evaluations", int_in(1))
+    eval_episodes: int = setting(
+        200, "episodes of each periodic evaluation (validation episodes)", int_in(1)
+    )
+    final_eval_episodes: int = setting(
+        1000,
+        "validation episodes of the final evaluation that picks the best seed per mode",
+        int_in(1),
+    )
+    keep_best: bool = setting(
+        True, "end with the weights that scored best in the evaluations", boolean
+    )
+    select_by: str = setting(
+        "steps",
+        "what picks checkpoints and the best seed (greedy and epsilon = 0.05 means): steps "
+        "(fewest steps within one point of the best success), success or return",
+        one_of(*SELECT_BY),
+    )
+    save_freq: int = setting(
+        0, "environment steps between intermediate model saves (0: at the end only)", int_in(0)
+    )
+    output_dir: str = setting(
+        str(DEFAULT_OUTPUT_DIR),
+        "folder for agent_models/ and training_logs/, relative to the current folder "
+        "(default: problem2/results)",
+        folder,
+    )
+    workers: int = setting(
+        available_cores, "parallel training processes (default: the available cores)", int_in(1)
+    )
+    overwrite: bool = setting(False, "replace a batch with other settings in --output_dir", boolean)
+
+    def __post_init__(self) -> None:
+        # --grid_size 10 and --grid_size 10 10 (the skeleton's list) mean the same grid.
+        if isinstance(self.grid_size, (list, tuple)):
+            sides = list(self.grid_size)
+            if len(sides) == 1 or (len(sides) == 2 and sides[0] == sides[1]):
+                self.grid_size = sides[0]
+            else:
+                self.grid_size = sides
+
+    def grid_shape(self) -> tuple[int, int]:
+        """(rows, cols) of the grid."""
+        if isinstance(self.grid_size, list):
+            return int(self.grid_size[0]), int(self.grid_size[1])
+        return int(self.grid_size), int(self.grid_size)
+
+    def run_seeds(self) -> list[int]:
+        return list(self.seeds) if self.seeds else [self.seed + i for i in range(self.num_seeds)]
+
+    def run_modes(self) -> list[str]:
+        return list(MODES) if self.mode == "all" else self.mode.split(",")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def hyperparameters(self) -> dict[str, Any]:
+        """Every field that shapes the results (not where they go or how many processes)."""
+        return {k: v for k, v in self.to_dict().items() if k not in RUN_ONLY_FIELDS}
+
+    def identity(self) -> dict[str, Any]:
+        """What a batch is, as its manifest records it (compared to decide replace vs refuse)."""
+        return {
+            "modes": self.run_modes(),
+            "seeds": self.run_seeds(),
+            "map_seed": self.map_seed,
+            "reward_mode": self.reward_mode,
+            "hyperparameters": self.hyperparameters(),
+        }
+
+
+# ------------------------------------------------------------------ validation
 class SettingError(ValueError):
     """Invalid training settings: ``problems`` lists (name, problem, value) for each, the
     flag being ``--name``; ``name``, ``problem`` and ``value`` are the first one's."""
@@ -66,231 +375,16 @@ def check_value(name: str, value: Any, check: Check) -> None:
         raise SettingError(name, problem, value)
 
 
-def int_in(low: int, high: int | None = None) -> Check:
-    allowed = f"an integer >= {low}" if high is None else f"an integer in {low}..{high}"
-
-    def check(value: Any) -> str | None:
-        ok = is_integer(value) and value >= low and (high is None or value <= high)
-        return None if ok else f"must be {allowed}"
-
-    return check
-
-
-def number_in(low: float, high: float, low_open: bool = False, high_open: bool = False) -> Check:
-    left, right = "(" if low_open else "[", ")" if high_open else "]"
-    shown_high = "inf)" if math.isinf(high) else f"{high:g}{right}"
-    allowed = f"a finite number in {left}{low:g}, {shown_high}"
-
-    def check(value: Any) -> str | None:
-        ok = (
-            isinstance(value, (int, float))
-            and not isinstance(value, bool)
-            and math.isfinite(value)
-            and (value > low if low_open else value >= low)
-            and (value < high if high_open else value <= high)
-        )
-        return None if ok else f"must be {allowed}"
-
-    return check
-
-
-def one_of(*choices: str) -> Check:
-    return lambda value: None if value in choices else f"must be one of {', '.join(choices)}"
-
-
-def boolean(value: Any) -> str | None:
-    return None if isinstance(value, bool) else "must be True or False"
-
-
-def folder(value: Any) -> str | None:
-    if not isinstance(value, (str, os.PathLike)) or not str(value):
-        return "must be a folder path"
-    return "must be a folder, not a file" if Path(value).is_file() else None
-
-
-def mode_list(modes: Sequence[str]) -> Check:
-    """``all`` or a comma-separated list of distinct ``modes``."""
-    shown = ", ".join(modes)
-
-    def check(value: Any) -> str | None:
-        if value == "all":
-            return None
-        chosen = value.split(",") if isinstance(value, str) and value else []
-        if chosen and set(chosen) <= set(modes) and len(set(chosen)) == len(chosen):
-            return None
-        return f"must be all or a comma-separated list of distinct modes from {shown}"
-
-    return check
-
-
-def distinct_ints(low: int, high: int) -> Check:
-    """A list (or tuple) of distinct integers in low..high."""
-
-    def check(value: Any) -> str | None:
-        ok = (
-            isinstance(value, (list, tuple))
-            and all(is_integer(v) and low <= v <= high for v in value)
-            and len(set(value)) == len(value)
-        )
-        return None if ok else f"must be distinct integers in {low}..{high}"
-
-    return check
-
-
-def one_or_two_ints(low: int, high: int) -> Check:
-    """An integer in low..high, or a list of one or two (e.g. a grid's rows and columns)."""
-
-    def check(value: Any) -> str | None:
-        values = value if isinstance(value, list) else [value]
-        ok = len(values) in (1, 2) and all(is_integer(v) and low <= v <= high for v in values)
-        return None if ok else f"must be one or two integers in {low}..{high}"
-
-    return check
-
-
-def available_cores() -> int:
-    """Cores this process may run on (the affinity mask where the OS has one)."""
-    if hasattr(os, "sched_getaffinity"):
-        return max(1, len(os.sched_getaffinity(0)))
-    return max(1, os.cpu_count() or 1)
-
-
-@dataclasses.dataclass
-class BatchConfig(TrainConfig):
-    """A batch of runs: every (mode, seed) of ``run_modes()`` x ``run_seeds()`` on one map,
-    trained in ``workers`` processes; each run reads the :class:`TrainConfig` fields."""
-
-    num_seeds: int = setting(10, "number of training seeds per mode (1 or more)")
-    seeds: list[int] = setting(
-        [],
-        "explicit distinct training seeds (override --seed and --num_seeds)",
-        items=(int, "SEED"),
-    )
-    map_seed: int = setting(
-        641,
-        "seed of the map (obstacles and target) every run trains on",
-    )
-    grid_size: int | list[int] = setting(
-        10,
-        "grid side (--grid_size 10) or rows and columns (--grid_size 10 10)",
-        items=(int, "N"),
-    )
-    max_steps: int = setting(
-        50,
-        "episode time limit (a cut-off: the TD target bootstraps through it)",
-    )
-    final_eval_episodes: int = setting(
-        1000,
-        "validation episodes of the final evaluation that picks the best seed per mode",
-    )
-    save_freq: int = setting(
-        0,
-        "environment steps between intermediate model saves (0: at the end only)",
-    )
-    workers: int = setting(
-        available_cores,
-        "parallel training processes (default: the available cores)",
-    )
-    overwrite: bool = setting(
-        False,
-        "replace a batch with other settings in --output_dir",
-    )
-
-    def __post_init__(self) -> None:
-        # --grid_size 10 and --grid_size 10 10 (the skeleton's list) mean the same grid.
-        if isinstance(self.grid_size, (list, tuple)):
-            sides = list(self.grid_size)
-            if len(sides) == 1 or (len(sides) == 2 and sides[0] == sides[1]):
-                self.grid_size = sides[0]
-            else:
-                self.grid_size = sides
-
-    def grid_shape(self) -> tuple[int, int]:
-        """(rows, cols) of the grid."""
-        if isinstance(self.grid_size, list):
-            return int(self.grid_size[0]), int(self.grid_size[1])
-        return int(self.grid_size), int(self.grid_size)
-
-    def run_seeds(self) -> list[int]:
-        return list(self.seeds) if self.seeds else [self.seed + i for i in range(self.num_seeds)]
-
-    def run_modes(self) -> list[str]:
-        return list(MODES) if self.mode == "all" else self.mode.split(",")
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    def hyperparameters(self) -> dict[str, Any]:
-        """Every field that shapes the results (not where they go or how many processes)."""
-        return {k: v for k, v in self.to_dict().items() if k not in RUN_ONLY_FIELDS}
-
-
-def decay_factor(value: Any) -> str | None:
-    """0 (the linear schedule) or the skeleton's multiplicative factor in (0, 1)."""
-    zero = value == 0 and not isinstance(value, bool)
-    if zero or number_in(0.0, 1.0, low_open=True, high_open=True)(value) is None:
-        return None
-    return (
-        "must be 0 (linear schedule) or a multiplicative factor per episode in (0, 1), e.g. 0.995"
-    )
-
-
-RULES: dict[str, Check] = {  # every field of BatchConfig, in its order
-    "mode": mode_list(TRAINABLE_MODES),
-    "seed": int_in(0, MAX_SEED),
-    "reward_mode": one_of("goal", "per_step", "arrival"),
-    "total_steps": int_in(1),
-    "num_episodes": int_in(0),
-    "num_envs": int_in(1),
-    "batch_size": int_in(1),
-    "lr": number_in(0.0, math.inf, low_open=True, high_open=True),
-    "lr_end_factor": number_in(0.0, 1.0),
-    "gamma": number_in(0.0, 1.0, high_open=True),
-    "n_step": int_in(1),
-    "epsilon_start": number_in(0.0, 1.0),
-    "epsilon_end": number_in(0.0, 1.0),
-    "epsilon_decay": decay_factor,
-    "epsilon_fraction": number_in(0.0, 1.0, low_open=True),
-    "hidden_dim": int_in(1),
-    "target_update": int_in(0),
-    "target_tau": number_in(0.0, 1.0, low_open=True),
-    "buffer_size": int_in(1),
-    "learning_starts": int_in(0),
-    "updates_per_step": int_in(1),
-    "max_grad_norm": number_in(0.0, math.inf, low_open=True, high_open=True),
-    "advantage_learning": number_in(0.0, 1.0, high_open=True),
-    "advantage_learning_ramp": number_in(0.0, 1.0, low_open=True),
-    "comm_learning": one_of("dial", "none"),
-    "comm_noise": number_in(0.0, math.inf, high_open=True),
-    "eval_interval": int_in(1),
-    "eval_episodes": int_in(1),
-    "keep_best": boolean,
-    "select_by": one_of(*SELECT_BY),
-    "output_dir": folder,
-    "target_potential": number_in(0.0, math.inf, high_open=True),
-    "potential_credit": one_of("agent", "team"),
-    "num_seeds": int_in(1),
-    "seeds": distinct_ints(0, MAX_SEED),
-    "map_seed": int_in(0, MAX_SEED),
-    "grid_size": one_or_two_ints(3, MAX_GRID_SIDE),
-    "max_steps": int_in(1),
-    "final_eval_episodes": int_in(1),
-    "save_freq": int_in(0),
-    "workers": int_in(1),
-    "overwrite": boolean,
-}
-
-
-def validated(cfg: TrainConfig, rules: dict[str, Check] = RULES) -> TrainConfig:
-    """``cfg`` if every field keeps its rule in ``rules`` (a subclass passes its own, e.g.
-    ``studies.pool_training.POOL_RULES``); otherwise :class:`SettingError` listing every
-    invalid field with its allowed range. A field without a rule is a TypeError."""
+def validated(cfg: TrainConfig) -> TrainConfig:
+    """``cfg`` if every field passes the check it was declared with (a study's subclass
+    declares its own fields' checks the same way); otherwise :class:`SettingError` listing
+    every invalid field with its allowed range. A field without a check is a TypeError."""
     problems = []
     for spec in dataclasses.fields(cfg):
-        if spec.name not in rules:
-            raise TypeError(f"no rule for the setting {spec.name} of {type(cfg).__name__}")
+        if spec.metadata.get("check") is None:
+            raise TypeError(f"no check for the setting {spec.name} of {type(cfg).__name__}")
         value = getattr(cfg, spec.name)
-        problem = rules[spec.name](value)
+        problem = spec.metadata["check"](value)
         if problem:
             problems.append((spec.name, problem, value))
     problems += cross_field_problems(cfg, invalid={name for name, _, _ in problems})
@@ -314,9 +408,9 @@ def cross_field_problems(cfg: TrainConfig, invalid: Collection[str] = ()) -> lis
         if readable(name, "batch_size") and getattr(cfg, name) < cfg.batch_size:
             problem = f"must be at least batch_size {cfg.batch_size}"
             problems.append((name, problem, getattr(cfg, name)))
-    if isinstance(cfg, BatchConfig) and readable(*BUDGET_FIELDS):
+    if readable(*BUDGET_FIELDS):
         problems += budget_problems(cfg)
-    if isinstance(cfg, BatchConfig) and readable("grid_size", "map_seed"):
+    if readable("grid_size", "map_seed"):
         try:
             generate_map(cfg.grid_shape(), cfg.map_seed)
         except ValueError as error:
@@ -328,7 +422,7 @@ def cross_field_problems(cfg: TrainConfig, invalid: Collection[str] = ()) -> lis
 BUDGET_FIELDS = ("total_steps", "num_episodes", "num_envs", "learning_starts", "max_steps")
 
 
-def budget_problems(cfg: BatchConfig) -> list[Problem]:
+def budget_problems(cfg: TrainConfig) -> list[Problem]:
     """A budget that ends before the first gradient update (``learning_starts`` env steps)
     trains nothing: the run would report an untrained agent. With ``num_episodes`` the most
     env steps a run can take is ``num_envs`` x ``max_steps`` per ``num_envs`` episodes."""
@@ -353,6 +447,78 @@ def budget_problems(cfg: BatchConfig) -> list[Problem]:
 
 
 def check_setting(name: str, value: Any) -> None:
-    """Raise :class:`SettingError` if ``value`` breaks BatchConfig field ``name``'s rule
+    """Raise :class:`SettingError` if ``value`` fails TrainConfig field ``name``'s check
     (checked alone, e.g. for a study's flag that is turned into other fields)."""
-    check_value(name, value, RULES[name])
+    spec = next(s for s in dataclasses.fields(TrainConfig) if s.name == name)
+    check_value(name, value, spec.metadata["check"])
+
+
+# ------------------------------------------------------------------ the command line
+class ListAction(argparse.Action):
+    """A list flag: values space- or comma-separated, each converted by ``item_type``."""
+
+    def __init__(self, *args: Any, item_type: Callable[[str], Any] = str, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.item_type = item_type
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:  # noqa: ANN001
+        items = []
+        for token in values if isinstance(values, list) else [values]:
+            for part in token.split(","):
+                if not part.strip():
+                    raise argparse.ArgumentError(self, f"empty item in {token!r}")
+                try:
+                    items.append(self.item_type(part.strip()))
+                except ValueError:
+                    name = getattr(self.item_type, "__name__", "value")
+                    raise argparse.ArgumentError(self, f"invalid {name} value: {part!r}") from None
+        setattr(namespace, self.dest, items)
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are a line each, naming the flag and the fix, with
+    "did you mean" for a misspelt flag, instead of the whole usage block."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        if message.startswith("unrecognized arguments: "):
+            known = [o for action in self._actions for o in action.option_strings]
+            for word in message.split(": ", 1)[1].split():
+                close = difflib.get_close_matches(word.split("=")[0], known, n=1, cutoff=0.6)
+                if close:
+                    message += f" (did you mean {close[0]}?)"
+        sys.stderr.write(f"{self.prog}: error: {message}\n(see {self.prog} --help)\n")
+        sys.exit(2)
+
+
+def build_parser(cls: type = TrainConfig, **parser_options: Any) -> OneLineParser:
+    """One flag per dataclass field, in both spellings, with the field's help and default."""
+    parser = OneLineParser(allow_abbrev=False, **parser_options)
+    for spec in dataclasses.fields(cls):
+        factory = spec.default_factory
+        default = spec.default if factory is dataclasses.MISSING else factory()
+        names = list(dict.fromkeys([f"--{spec.name}", f"--{spec.name.replace('_', '-')}"]))
+        options: dict[str, Any] = {"dest": spec.name, "default": default}
+        # A default that is a path of this machine or the core count: its help names it.
+        shown_default = "" if "(default:" in spec.metadata["help"] else " (default: %(default)s)"
+        options["help"] = spec.metadata["help"] + shown_default
+        if isinstance(default, bool):
+            options["action"] = argparse.BooleanOptionalAction
+        elif spec.metadata["items"]:
+            item_type, options["metavar"] = spec.metadata["items"]
+            options |= {"nargs": "+", "action": ListAction, "item_type": item_type}
+        else:
+            options["type"] = type(default)
+        parser.add_argument(*names, **options)
+    return parser
+
+
+def parse_config(argv: list[str] | None, parser: argparse.ArgumentParser) -> TrainConfig:
+    """Parse and validate: a bad value is a usage error naming, a line each, the flag, the
+    value and the allowed range (exit status 2), before any work."""
+    values = vars(parser.parse_args(argv))
+    if isinstance(values.get("mode"), list):
+        values["mode"] = ",".join(values["mode"])
+    try:
+        return validated(TrainConfig(**values))
+    except SettingError as error:
+        parser.error(usage(error))

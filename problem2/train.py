@@ -1,96 +1,70 @@
-"""Train the two agents of Problem 2: every ablation mode, several seeds, in parallel.
+"""Train the two agents of Problem 2: each ablation mode x several seeds, on one map.
 
     python train.py                      # 3 modes x 10 seeds on the default map (seed 641)
     python train.py --mode full --seeds 641 642 --total_steps 200000 --output_dir my_run
-    python train.py --help               # every hyperparameter, with its meaning and range
+    python train.py --help               # every setting, its meaning and its allowed range
 
-The algorithm is ``trainer.DQNTrainer``; :class:`MultiAgentTrainer` adds the course
-skeleton's interface to it. The hyperparameters are in ``train_config.py`` and their rules
-in ``settings.py``; the command line here has one flag per :class:`~settings.BatchConfig`
-field (both spellings, the field's help and default; list flags take ``--seeds 641 642`` or
-``--seeds 641,642``), checks every value before any work, and refuses the flags that left
-the core with a message naming the command that now owns them. The batch is in
-``batch/experiments.py``; :func:`apply_observation_mask` is the course's masking function
-(the learner applies the same mask, ``models.observation_mask``, inside its networks' inputs).
+Read from :func:`main` down: the flags (``settings.TrainConfig``: each setting's default,
+meaning and check, declared once), the output folder's checks (``safety.py``), then for each
+mode and seed :func:`train_one`: the environment, the learner (``trainer.DQNTrainer``),
+``train()``, the saved models and log, and the validation that picks each mode's best seed;
+then the batch's record (:func:`record_batch`) and its curves. :func:`apply_observation_mask`
+and :class:`MultiAgentTrainer` are the course skeleton's names.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import dataclasses
-import gc
+import multiprocessing
+import shutil
 import sys
-from collections.abc import Callable, Sequence
+import time
+from pathlib import Path
 from typing import Any
 
+import safety  # first: checks the packages (standard library only)
+
 import numpy as np
-import safety  # noqa: F401  (first: checks the packages, stdlib only)
 import torch
-from batch.experiments import (
-    INTERRUPTED,
-    MANIFEST,
-    SavingTrainer,
-    check_output_dir,
-    output_root,
-    run_experiments,
-)
-from grid_maps import NUM_ACTIONS
+from grid_maps import NUM_ACTIONS, generate_map
 from models import observation_mask
-from replay_buffer import ReplayBuffer
-from rollout import EVAL_SEED, Rollout
-from safety import make_console_safe, use_reproducible_matmul
-from settings import BatchConfig, SettingError, usage, validated
-from train_config import TrainConfig
-from trainer import EVAL_EPSILON, step_fields
+from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED, select_best
+from settings import TrainConfig, build_parser, parse_config, validated
+from trainer import DQNTrainer
+from vector_env import VectorMultiAgentEnv
 
 __all__ = ["EVAL_EPSILON", "MultiAgentTrainer", "TrainConfig", "apply_observation_mask", "main"]
 
 
 def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndarray | torch.Tensor:
-    """Zero the inputs that ablation ``mode`` hides (``models.MASKED_INPUTS``):
-    ``independent`` the message and the distance (elements 9 and 10 for a 3 x 3 window),
-    ``comm`` the distance, ``distance`` the message, ``full`` none. Any leading shape
-    (..., obs_dim)."""
+    """Zero the inputs that ablation ``mode`` hides (``models.MASKED_INPUTS``): ``independent``
+    the message and the distance (elements 9 and 10 for a 3 x 3 window), ``comm`` the
+    distance, ``distance`` the message, ``full`` none. Any leading shape (..., obs_dim)."""
     mask = observation_mask(mode, obs.shape[-1])
     if isinstance(obs, torch.Tensor):
         return obs * torch.tensor(mask)
     return np.asarray(obs, dtype=np.float32) * mask
 
 
-def config_from(args: Any) -> TrainConfig:
-    """A TrainConfig as given, or one built and validated from any namespace, e.g. the course
-    skeleton's (``mode`` missing or ``all`` means ``full``; output under ``./results``;
-    other attributes ignored, ``grid_size`` among them: the map comes from the environment)."""
-    if isinstance(args, TrainConfig):
-        return args
-    known = {f.name for f in dataclasses.fields(TrainConfig)}
-    settings = {k: v for k, v in vars(args).items() if k in known and v is not None}
-    if settings.get("mode", "all") == "all":
-        settings["mode"] = "full"
-    settings.setdefault("output_dir", "results")  # like the skeleton
-    return validated(TrainConfig(**settings))
-
-
-class MultiAgentTrainer(SavingTrainer):
-    """The course skeleton's trainer: the learner (:class:`trainer.DQNTrainer`, writing policy
-    files as :class:`~batch.experiments.SavingTrainer` does) built from a bare
-    ``argparse.Namespace`` (or a TrainConfig) with ``select_action``, ``train_episode``,
-    ``evaluate`` and ``network_A`` / ``network_B`` on top."""
+class MultiAgentTrainer(DQNTrainer):
+    """The course skeleton's trainer: the learner built from a bare ``argparse.Namespace``
+    (``mode`` missing or ``all`` means ``full``; other attributes, e.g. ``grid_size``, are
+    read from the environment) with ``select_action``, ``train_episode``, ``evaluate`` and
+    ``network_A`` / ``network_B`` on top."""
 
     def __init__(self, env: Any, args: Any) -> None:
-        super().__init__(env, config_from(args))
-        # The course's buffer: push / sample, and every push checked (transitions by hand).
-        self.replay_buffer = ReplayBuffer(self.cfg.buffer_size, seed=self.seed)
-        self._episode_rollout: Rollout | None = None  # the one-environment rollout
+        known = {f.name for f in dataclasses.fields(TrainConfig)}
+        settings = {k: v for k, v in vars(args).items() if k in known and v is not None}
+        if settings.get("mode", "all") == "all":
+            settings["mode"] = "full"
+        settings.setdefault("output_dir", "results")  # like the skeleton
+        super().__init__(env, validated(TrainConfig(**settings)))
+        self._episode_rollout = self.start_rollout(1, self.seed + 1)  # train_episode's env
 
-    @property
-    def network_A(self) -> torch.nn.Module:
-        """Agent A's network as a standalone AgentDQN (a snapshot)."""
-        return self.online.agent(0)
-
-    @property
-    def network_B(self) -> torch.nn.Module:
-        return self.online.agent(1)
+    network_A = property(lambda self: self.online.agent(0), doc="A's network (a copy)")
+    network_B = property(lambda self: self.online.agent(1), doc="B's network (a copy)")
 
     def select_action(
         self, state: np.ndarray, network: torch.nn.Module, epsilon: float
@@ -105,10 +79,8 @@ class MultiAgentTrainer(SavingTrainer):
         return action, float(comm.item())
 
     def train_episode(self) -> tuple[float, bool]:
-        """Play one episode in a single environment, learning as ``train`` does but with one
+        """Play one episode in one environment, learning as ``train`` does but with one
         gradient update per env step (the skeleton's loop); returns (episode_reward, success)."""
-        if self._episode_rollout is None:
-            self._episode_rollout = self.start_rollout(1, self.seed + 1)
         while True:
             returns, successes, finished = self.collect(self._episode_rollout)
             if self.env_steps >= self.cfg.learning_starts:
@@ -125,62 +97,199 @@ class MultiAgentTrainer(SavingTrainer):
         summary = self.evaluation_summary(num_episodes, epsilon, seed)
         return summary["mean_return"], summary["success_rate"]
 
-    def store(
-        self,
-        rollout: Rollout,
-        actions: np.ndarray,
-        messages: np.ndarray,
-        rewards: np.ndarray,
-        next_obs: np.ndarray,
-        terminated: np.ndarray,
-        truncated: np.ndarray,
-    ) -> None:
-        """Into a buffer first filled by hand with the course's ten fields, push one-step
-        transitions of those fields; otherwise the core's n-step transitions."""
-        buffer = self.replay_buffer
-        if not len(buffer) or "discount" in buffer.field_names:
-            return super().store(
-                rollout, actions, messages, rewards, next_obs, terminated, truncated
-            )
-        buffer.push_batch(
-            **step_fields(rollout.obs, actions, messages),
-            reward=rewards,
-            next_state_A=next_obs[:, 0],
-            next_state_B=next_obs[:, 1],
-            done=terminated,
-        )
+
+# ------------------------------------------------------------------ one run, then the batch
+def train_one(
+    cfg: TrainConfig, mode: str, seed: int, staging: Path, trainer_class: type = DQNTrainer
+) -> dict[str, Any]:
+    """Train ``mode`` with ``seed`` into ``staging``'s agent_models/ and training_logs/, then
+    evaluate it on ``final_eval_episodes`` validation episodes, greedy and at ε = 0.05 (what
+    picks each mode's best seed; the reported results come from evaluate.py)."""
+    torch.set_num_threads(1)  # runs go in parallel, one per core
+    run_cfg = dataclasses.replace(cfg, mode=mode, seed=seed, seeds=[], output_dir=str(staging))
+    env = VectorMultiAgentEnv(  # the map: the trainer reads its grid, window and time limit
+        1,
+        grid_size=cfg.grid_shape(),
+        max_steps=cfg.max_steps,
+        seed=cfg.map_seed,
+        reward_mode=cfg.reward_mode,
+    )
+    trainer = trainer_class(env, run_cfg)
+    start = time.perf_counter()
+    trainer.train(lambda row: report_progress(trainer, row, start))
+    selection: dict[str, Any] = {"select_by": cfg.select_by, "validation_seed": VALIDATION_SEED}
+    for label, epsilon in (("greedy", 0.0), ("eps", EVAL_EPSILON)):
+        summary = trainer.evaluation_summary(cfg.final_eval_episodes, epsilon, VALIDATION_SEED)
+        selection[label] = {"epsilon": epsilon, **summary}
+    safety.write_json_atomic(
+        trainer.logs_dir / f"{trainer.name}_selection.json",
+        {"mode": mode, "seed": seed} | selection,
+    )
+    return {"mode": mode, "seed": seed, **selection, "seconds": time.perf_counter() - start}
 
 
-# ------------------------------------------------------------------ the command line
-MAP_POOL_COMMAND = "python -m studies.map_pool_study"
-MOVED_FLAGS = {  # flag -> where it lives now
-    "map_pool": MAP_POOL_COMMAND,
-    "validation_maps": MAP_POOL_COMMAND,
-    "share_weights": MAP_POOL_COMMAND,
-    "coverage_bonus": MAP_POOL_COMMAND,
-    "on_target_bonus": MAP_POOL_COMMAND,
-    "prioritized": "no command: prioritised replay was retired from training "
-    "(replay_buffer.PrioritizedReplayBuffer remains, for the course interface)",
-    "dueling": "no command: the dueling head was retired from training "
-    "(models.DuelingDQN remains, for the course interface)",
+def report_progress(trainer: DQNTrainer, row: dict[str, Any], start: float) -> None:
+    """After each periodic evaluation: the intermediate save (``--save_freq``) and, every ~10 s
+    and at the end, one plain line (runs in parallel print their own lines)."""
+    cfg = trainer.cfg
+    if cfg.save_freq and row["env_steps"] % cfg.save_freq < cfg.eval_interval:
+        trainer.save_models()
+    elapsed, done = time.perf_counter() - start, trainer.progress()
+    if done < 1 and elapsed < getattr(trainer, "_shown", 0.0) + 10:
+        return
+    trainer._shown = elapsed
+    eta = elapsed * (1 - done) / done if done else float("nan")
+    print(
+        f"{trainer.name}: {row['env_steps']:,} env steps ({done:.0%}), "
+        f"{row['env_steps'] / max(elapsed, 1e-9):,.0f} steps/s, epsilon {row['epsilon']:.2f}, "
+        f"validation success {row['eval_success_eps']:.2f}, ETA {eta:.0f} s",
+        flush=True,
+    )
+
+
+def record_batch(cfg: TrainConfig, finals: list[dict[str, Any]], staging: Path) -> dict[str, str]:
+    """After every run: the wall times, each mode's best pair ``<mode>_agent_{A,B}.pt`` (the
+    seed ``select_by`` picks on the validation episodes), the curves and, last, the manifest
+    (the runs, their selection results and each model file's sha256, which evaluate.py
+    checks). Returns the best run of each mode."""
+    models, logs = staging / "agent_models", staging / "training_logs"
+    seconds = {f"{f['mode']}_seed{f['seed']}": round(f.pop("seconds"), 1) for f in finals}
+    safety.write_json_atomic(logs / "timing.json", seconds)
+    best, runs = {}, {}
+    for mode in cfg.run_modes():
+        mode_runs = sorted((f for f in finals if f["mode"] == mode), key=lambda f: f["seed"])
+        winner = mode_runs[select_best([(f["greedy"], f["eps"]) for f in mode_runs], cfg.select_by)]
+        best[mode] = f"{mode}_seed{winner['seed']}"
+        for agent in "AB":
+            with safety.temporary_path_for(models / f"{mode}_agent_{agent}.pt") as temporary:
+                shutil.copyfile(models / f"{best[mode]}_agent_{agent}.pt", temporary)
+    for final in finals:
+        name = f"{final['mode']}_seed{final['seed']}"
+        files = {agent: f"{name}_agent_{agent}.pt" for agent in "AB"}
+        runs[name] = {"mode": final["mode"], "seed": final["seed"]}
+        runs[name] |= safety.model_listing(files, models)
+        runs[name]["selection"] = {"select_by": cfg.select_by} | {
+            condition: {key: final[condition][key] for key in SELECTION_MEASURES}
+            for condition in ("greedy", "eps")
+        }
+        last = {agent: f"last_weights/{name}_agent_{agent}.pt" for agent in "AB"}
+        if all((models / f).is_file() for f in last.values()):  # trained with keep_best
+            runs[name]["last_weights"] = safety.model_listing(last, models)
+    plot_training_curves(logs, cfg.run_modes(), cfg.run_seeds(), cfg.hyperparameters())
+    manifest = {"format": 1, **cfg.identity(), "runs": runs, "best": best}
+    safety.write_json_atomic(models / safety.MANIFEST, manifest)
+    return best
+
+
+SELECTION_MEASURES = ("success_rate", "mean_steps_to_success", "mean_return")
+MODE_COLOURS = {
+    "independent": "#1b9e77",
+    "comm": "#d95f02",
+    "distance": "#e7298a",
+    "full": "#7570b3",
+}
+RETURN_NAMES = {  # reward_mode -> the return the curves show when no table return was logged
+    "goal": "goal reward",
+    "per_step": "assignment's reward",
+    "arrival": "arrival reward",
 }
 
 
-class MovedFlag(argparse.Action):
-    """A flag that ``train.py`` no longer takes: a usage error saying where it went."""
+def read_csv(path: Path) -> list[dict[str, float]]:
+    with open(path, newline="", encoding="utf-8") as handle:
+        return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(handle)]
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, nargs="?", **kwargs)
 
-    def __call__(self, parser, namespace, values, option_string=None) -> None:  # noqa: ANN001
-        owner = MOVED_FLAGS[self.dest]
-        parser.error(f"{option_string} is not a train.py flag any more; it belongs to {owner}")
+def plot_training_curves(
+    logs_dir: Path, modes: list[str], seeds: list[int], settings: dict[str, Any]
+) -> None:
+    """Validation success and return (ε = 0.05) against env steps, the modes overlaid: the
+    mean over seeds and the interquartile band. The return is the assignment's (+10 / +2 /
+    −0.1) where the logs hold it, else the reward the batch learnt from (``settings``)."""
+    from matplotlib.figure import Figure  # here: a worker process never needs matplotlib
+
+    logs = {m: [read_csv(logs_dir / f"{m}_seed{s}.csv") for s in seeds] for m in modes}
+    table = all("eval_return_table_eps" in log[0] for runs in logs.values() for log in runs)
+    return_key = "eval_return_table_eps" if table else "eval_return_eps"
+    reward = "assignment's reward" if table else RETURN_NAMES[settings["reward_mode"]]
+    fig = Figure(figsize=(6.5, 2.6), layout="constrained")
+    for ax, key, label in zip(
+        fig.subplots(1, 2),
+        ("eval_success_eps", return_key),
+        ("success rate", f"return ({reward})"),
+        strict=True,
+    ):
+        for mode, runs in logs.items():
+            length = min(len(log) for log in runs)
+            steps = np.array([row["env_steps"] for row in runs[0][:length]]) / 1000
+            values = np.array([[row[key] for row in log[:length]] for log in runs])
+            low, high = np.percentile(values, [25, 75], axis=0)
+            colour = MODE_COLOURS.get(mode)
+            ax.fill_between(steps, low, high, color=colour, alpha=0.2, linewidth=0)
+            ax.plot(steps, values.mean(axis=0), color=colour, linewidth=1.6, label=mode)
+        ax.set_xlabel("environment steps (thousands)", fontsize=9)
+        ax.set_ylabel(label, fontsize=9)
+        ax.grid(True, alpha=0.3)
+        ax.tick_params(labelsize=8)
+    ax.legend(fontsize=8, frameon=False, title=f"{len(seeds)} seeds each", title_fontsize=8)
+    with safety.temporary_path_for(logs_dir / "training_curves.png") as temporary:
+        fig.savefig(temporary, format="png", dpi=150)
+
+
+def main(
+    argv: list[str] | None = None, cfg: TrainConfig | None = None, trainer_class: type = DQNTrainer
+) -> list[dict[str, Any]]:
+    """Train every requested mode and seed and write the models, logs and curves of the batch.
+    Every setting (``argv``, or a study's checked ``cfg`` and learner) and the output folder
+    are checked before any work (a bad one: a usage error naming the flag, exit status 2)."""
+    safety.use_reproducible_matmul()  # before the first matrix product
+    safety.make_console_safe()
+    parser = build_parser(
+        description="Train the two agents (Problem 2).",
+        epilog=OUTPUT_RULE,
+        formatter_class=argparse.RawDescriptionHelpFormatter,  # the epilog's paragraphs kept
+    )
+    cfg = validated(cfg) if cfg else parse_config(argv, parser)
+    root = Path(cfg.output_dir).resolve()
+    try:
+        default = TrainConfig().identity()
+        safety.check_output_dir(root, cfg.identity(), default, cfg.overwrite)
+    except safety.FolderError as error:
+        parser.error(f"argument --output_dir: {error}, got {cfg.output_dir!r}")
+    jobs = [(cfg, mode, seed) for mode in cfg.run_modes() for seed in cfg.run_seeds()]
+    print(f"training {len(jobs)} runs into {shown(root)} ({cfg.workers} at a time)")
+    with safety.staged_batch(root) as staging:
+        models = staging / "agent_models"
+        grid = generate_map(cfg.grid_shape(), cfg.map_seed)
+        safety.write_json_atomic(models / "map.json", {"grid": grid.tolist()})
+        safety.write_json_atomic(models / "hyperparameters.json", cfg.hyperparameters())
+        if min(cfg.workers, len(jobs)) == 1:
+            finals = [train_one(*job, staging, trainer_class) for job in jobs]
+        else:  # one run per process; results in the order of the jobs
+            context = multiprocessing.get_context("spawn")
+            with context.Pool(min(cfg.workers, len(jobs)), safety.start_worker) as pool:
+                finals = pool.starmap(train_one, [(*job, staging, trainer_class) for job in jobs])
+        best = record_batch(cfg, finals, staging)
+    for final in finals:
+        name = f"{final['mode']}_seed{final['seed']}"
+        print(
+            f"{name:<22} validation success greedy {final['greedy']['success_rate']:.3f}, "
+            f"epsilon 0.05 {final['eps']['success_rate']:.3f}"
+            + (" (best)" * (name in best.values()))
+        )
+    print(f"wrote {shown(root)} (evaluate.py tests the models on other episodes)")
+    return finals
+
+
+def shown(path: Path) -> str:
+    """``path`` relative to the current folder when it lies inside it."""
+    return str(path.relative_to(Path.cwd())) if path.is_relative_to(Path.cwd()) else str(path)
 
 
 OUTPUT_RULE = """\
 Outputs (in --output_dir): agent_models/ (TorchScript pairs, manifest.json, map.json,
-hyperparameters.json) and training_logs/ (one CSV per run, <run>_selection.json, curves,
-timing.json).
+hyperparameters.json) and training_logs/ (one CSV per run, <run>_selection.json,
+training_curves.png, timing.json).
 
 A batch is written into a hidden staging folder inside --output_dir and moved into place
 only when every run has finished, so the folder holds one whole batch or the previous one.
@@ -191,126 +300,12 @@ it. Settings other than the defaults never go into the default folder without --
 analysis), is refused even with --overwrite. A replaced batch's evaluation_results/ goes
 with it (unless the new models are byte-identical): run evaluate.py again. Interrupted
 with Ctrl-C, the batch leaves the evaluation rows it measured in
-<output_dir>/interrupted/training_logs/ and the results untouched.
+<output_dir>/interrupted/<n>/training_logs/ and the results untouched.
 Stale temporary files of killed runs are removed at the next start."""
 
 
-def build_parser(cls: type = BatchConfig) -> argparse.ArgumentParser:
-    """One flag per dataclass field, in both spellings, with the field's help and default."""
-    parser = argparse.ArgumentParser(
-        allow_abbrev=False,
-        description="Train the two agents (Problem 2).",
-        epilog=OUTPUT_RULE,
-        formatter_class=argparse.RawDescriptionHelpFormatter,  # the epilog's paragraphs kept
-    )
-    for spec in dataclasses.fields(cls):
-        factory = spec.default_factory
-        default = spec.default if factory is dataclasses.MISSING else factory()
-        names = list(dict.fromkeys([f"--{spec.name}", f"--{spec.name.replace('_', '-')}"]))
-        options: dict[str, Any] = {"dest": spec.name, "default": default}
-        # A default that is a path of this machine or the core count: its help names it.
-        shown_default = "" if "(default:" in spec.metadata["help"] else " (default: %(default)s)"
-        options["help"] = spec.metadata["help"] + shown_default
-        if isinstance(default, bool):
-            options["action"] = argparse.BooleanOptionalAction
-        elif spec.metadata["items"]:
-            item_type, options["metavar"] = spec.metadata["items"]
-            options |= {"nargs": "+", "action": ListAction, "item_type": item_type}
-        else:
-            options["type"] = type(default)
-        parser.add_argument(*names, **options)
-    fields = {spec.name for spec in dataclasses.fields(cls)}
-    for name in (name for name in MOVED_FLAGS if name not in fields):  # a subclass may own it
-        spellings = {name, name.replace("_", "-")}
-        flags = [f"--{s}" for s in sorted(spellings)] + [f"--no-{s}" for s in sorted(spellings)]
-        parser.add_argument(
-            *flags,
-            dest=name,
-            action=MovedFlag,
-            default=argparse.SUPPRESS,
-            help=argparse.SUPPRESS,
-        )
-    return parser
-
-
-def parse_config(
-    argv: Sequence[str] | None = None, parser: argparse.ArgumentParser | None = None
-) -> BatchConfig:
-    """Parse and validate; bad values raise :class:`SettingError` (a ValueError)."""
-    values = vars((parser or build_parser()).parse_args(argv))
-    if isinstance(values.get("mode"), list):
-        values["mode"] = ",".join(values["mode"])
-    return validated(BatchConfig(**values))
-
-
-def parse_config_or_exit(
-    argv: Sequence[str] | None = None,
-    extra_check: Callable[[BatchConfig], None] | None = None,
-) -> BatchConfig:
-    """Parse and validate as the CLI does: bad values are an argparse usage error (exit 2)
-    naming, a line each, the flag, the value and the allowed range. ``extra_check`` (e.g.
-    the output folder rule) may raise SettingError too."""
-    parser = build_parser()
-    try:
-        cfg = parse_config(argv, parser)
-        if extra_check is not None:
-            extra_check(cfg)
-    except SettingError as error:
-        parser.error(usage(error))
-    return cfg
-
-
-class ListAction(argparse.Action):
-    """A list flag: values space- or comma-separated, each converted by ``item_type``."""
-
-    def __init__(self, *args: Any, item_type: Callable[[str], Any] = str, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.item_type = item_type
-
-    def __call__(self, parser, namespace, values, option_string=None) -> None:  # noqa: ANN001
-        items = []
-        for token in values if isinstance(values, list) else [values]:
-            for part in token.split(","):
-                if not part.strip():
-                    raise argparse.ArgumentError(self, f"empty item in {token!r}")
-                try:
-                    items.append(self.item_type(part.strip()))
-                except ValueError:
-                    name = getattr(self.item_type, "__name__", "value")
-                    raise argparse.ArgumentError(self, f"invalid {name} value: {part!r}") from None
-        setattr(namespace, self.dest, items)
-
-
-def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
-    """Train every requested mode and seed (in parallel) and write models, logs and curves.
-    Every setting and the output folder are checked first (a usage error names the flag)."""
-    use_reproducible_matmul()  # before the first matrix product
-    make_console_safe()
-    cfg = parse_config_or_exit(argv, extra_check=check_output_dir)
-    if (output_root(cfg) / "agent_models" / MANIFEST).is_file():
-        print(f"the batch in {output_root(cfg)} is replaced when this one is complete")
-    try:
-        finals = run_experiments(cfg)
-    except KeyboardInterrupt:
-        kept = output_root(cfg) / INTERRUPTED / "training_logs"
-        print(f"\ninterrupted: the rows measured so far are in {kept}", file=sys.stderr)
-        raise
-    print(f"{'run':<22} {'selection: success greedy':>26} {'eps=0.05':>9}")
-    for final in finals:
-        print(
-            f"{final['mode'] + ' seed ' + str(final['seed']):<22} "
-            f"{final['greedy']['success_rate']:26.3f} {final['eps']['success_rate']:9.3f}"
-        )
-    print(f"wrote {output_root(cfg)} (success on validation episodes; evaluate.py tests)")
-    return finals
-
-
 if __name__ == "__main__":
-    # Frozen, the modules' objects (torch alone has ~170 k) are skipped by the collector's full
-    # passes during the run and at exit (~0.3 s sooner); freezing again adds what the run imported.
-    gc.freeze()
     try:
         main()
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # the measured rows were kept (staged_batch)
         sys.exit(130)
-    gc.freeze()

@@ -10,7 +10,7 @@ in the input mask (``models.observation_mask``) applied wherever a network sees 
 (``td_loss`` → ``backward()`` → clip → Adam → target sync) → schedules → evaluate and log.
 ``train.MultiAgentTrainer`` adds the course skeleton's interface. Studies subclass it through
 ``make_vector_env``, ``input_mask``, ``learning_rewards``, ``sample``, ``after_backward`` and
-``save_models``.
+``export_agent``.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from grid_maps import NUM_ACTIONS, TARGET
-from models import AgentDQN, PairedQNetworks, observation_mask
+from models import AgentDQN, PairedQNetworks, export_policy, observation_mask
 from replay import ReplayBuffer, TransitionBatch, sample_batch
 from rollout import (
     EVAL_EPSILON,
@@ -38,7 +38,7 @@ from rollout import (
     evaluate_policy,
     select_best,
 )
-from train_config import TRAINABLE_MODES, TrainConfig
+from settings import TRAINABLE_MODES, TrainConfig
 from vector_env import VectorMultiAgentEnv
 
 LAST_WEIGHTS = "last_weights"  # subfolder of agent_models/: each run's final weights (keep_best)
@@ -97,7 +97,11 @@ class DQNTrainer:
         self.rollout = self.start_rollout(cfg.num_envs, self.seed)
         self.obs_dim = self.rollout.env.obs_dim
         self.mask = self.input_mask()  # (D,)
-        self.message_column = torch.arange(self.obs_dim) == self.obs_dim - 2  # (D,) element w²
+        # The partner's message is the second-to-last input: element w² of an observation
+        # (models.MESSAGE_INDEX for 3 x 3), and an agent with memory keeps message and
+        # distance last too.
+        message_index = self.obs_dim - 2
+        self.message_column = torch.arange(self.obs_dim) == message_index  # (D,)
         sizes = (self.obs_dim, cfg.hidden_dim, NUM_ACTIONS, self.network_class)
         self.online, self.target = PairedQNetworks(*sizes), PairedQNetworks(*sizes)
         self.target.load_state_dict(self.online.state_dict())
@@ -105,9 +109,9 @@ class DQNTrainer:
         self.target_parameters = list(self.target.parameters())
         self.online_parameters = list(self.online.parameters())  # both agents' weights
         self.optimizer = torch.optim.Adam(self.online_parameters, lr=cfg.lr, fused=True)
-        self.replay_buffer = ReplayBuffer(cfg.buffer_size, seed=self.seed)
+        self.replay_buffer = ReplayBuffer(cfg.buffer_size, seed=self.seed, gamma=cfg.gamma)
         # DIAL trains the message where the receiver sees it (comm, full).
-        self.dial = cfg.comm_learning == "dial" and bool(self.mask[self.obs_dim - 2])
+        self.dial = cfg.comm_learning == "dial" and bool(self.mask[message_index])
         self.epsilon = cfg.epsilon_start
         self.env_steps = self.episodes = self.updates = 0
         self.recent_returns: deque[float] = deque(maxlen=100)
@@ -403,7 +407,7 @@ class DQNTrainer:
     ) -> dict[str, float | int | None]:
         """:func:`rollout.evaluate_policy` of the current policy on fixed episodes drawn
         from ``seed``, in environments made once per run (each evaluation reseeds them)."""
-        n_envs = min(num_episodes, 500)
+        n_envs = min(num_episodes, 500)  # more copies than this gain no speed, only memory
         if n_envs not in self._evaluation_envs:
             self._evaluation_envs[n_envs] = self.make_vector_env(n_envs, None, validation=True)
         env = self._evaluation_envs[n_envs]
@@ -469,8 +473,16 @@ class DQNTrainer:
         self.log_path.write_bytes(b"")
 
     def save_models(self, folder: Path | None = None) -> list[Path]:
-        """Hook: write both agents into ``folder`` (default: ``models_dir``) and return the
-        paths. ``train`` calls it with the run's last weights (``last_weights/``, with
-        ``keep_best``) and with the weights it ends with. The learner keeps its agents in
-        memory; the programs that train write policy files (``batch.experiments.SavingTrainer``)."""
-        return []
+        """Write both agents as policy files ``<mode>_seed<seed>_agent_{A,B}.pt`` into
+        ``folder`` (default: ``models_dir``) and return the paths. ``train`` calls it with the
+        run's last weights (``last_weights/``, with ``keep_best``) and with the weights it ends
+        with."""
+        folder = self.models_dir if folder is None else folder
+        return [
+            self.export_agent(i, folder / f"{self.name}_agent_{a}.pt") for i, a in enumerate("AB")
+        ]
+
+    def export_agent(self, index: int, path: Path) -> Path:
+        """Write agent ``index``: its network behind the mode's mask, as TorchScript
+        (:func:`models.export_policy`; a study's agents may take another form)."""
+        return export_policy(self.online.agent(index), self.mode, path)

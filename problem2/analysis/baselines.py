@@ -20,8 +20,10 @@ from collections import deque
 from functools import partial
 from pathlib import Path
 
-import numpy as np
 import safety  # noqa: F401  (first: checks the packages, stdlib only)
+from safety import use_reproducible_matmul, write_json_atomic
+
+import numpy as np
 from grid_maps import (
     ACTION_DELTAS,
     DEFAULT_MAP_SEED,
@@ -31,7 +33,6 @@ from grid_maps import (
     generate_map,
 )
 from rollout import EVAL_SEED, PolicyFn, evaluate_policy
-from safety import use_reproducible_matmul, write_json_atomic
 from vector_env import REWARD_MODES, VectorMultiAgentEnv
 
 RESULTS_DIR = Path(__file__).resolve().parent.parent / "results" / "evaluation_results"

@@ -20,8 +20,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from safety import temporary_path_for
+
+import numpy as np
 
 from analysis.estimate_plots import plot_failure_decomposition, plot_interventions, plot_measures
 from analysis.messages import mean_message_per_cell

@@ -13,6 +13,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from safety import temporary_path_for
+
 import numpy as np
 from grid_maps import OBSTACLE, TARGET
 from matplotlib.animation import FuncAnimation, PillowWriter
@@ -21,7 +23,6 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator, StrMethodFormatter
 from models import MASKED_INPUTS, MESSAGE_INDEX
 from rollout import EpisodeResults
-from safety import temporary_path_for
 
 from analysis.failures import FAILURE_KINDS, classify_failures
 

@@ -5,7 +5,7 @@
 
 Each folder is a batch that ``python train.py`` installed: ``agent_models/manifest.json``
 names its modes, seeds, map and settings, ``training_logs/`` holds one CSV per run. The
-figure is :func:`experiments.plot_training_curves`, as at the end of training.
+figure is :func:`train.plot_training_curves`, as at the end of training.
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ import json
 from pathlib import Path
 
 import safety  # noqa: F401  (first: checks the packages, stdlib only)
-from batch.experiments import MANIFEST, curves_title, plot_training_curves
-from safety import use_reproducible_matmul
-from train_config import DEFAULT_OUTPUT_DIR
+from safety import DEFAULT_OUTPUT_DIR, MANIFEST, use_reproducible_matmul
+
+from train import plot_training_curves
 
 
 def read_batch(batch_dir: Path) -> dict:
@@ -43,7 +43,7 @@ def redraw(batch_dir: Path, identity: dict) -> Path:
     ``identity``; returns its path."""
     logs_dir = batch_dir / "training_logs"
     plot_training_curves(
-        logs_dir, identity["modes"], identity["seeds"], curves_title(identity["hyperparameters"])
+        logs_dir, identity["modes"], identity["seeds"], identity["hyperparameters"]
     )
     return logs_dir / "training_curves.png"
 

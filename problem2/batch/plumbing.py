@@ -17,56 +17,15 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
+from safety import write_json_atomic
+
 import numpy as np
 from grid_maps import check_grid
-from safety import write_json_atomic
 
 
 def save_map(path: str | Path, grid: np.ndarray) -> None:
     """Write a validated map to ``path`` as JSON ``{"grid": [[...], ...]}`` (atomically)."""
     write_json_atomic(path, {"grid": check_grid(grid).tolist()})
-
-
-def process_alive(pid: int) -> bool:
-    """Whether process ``pid`` is running (this process counts as running)."""
-    if pid == os.getpid():
-        return True
-    if os.name == "nt":  # os.kill(pid, 0) would send CTRL_C there; ask the kernel instead
-        import ctypes
-
-        kernel32 = ctypes.windll.kernel32  # type: ignore[attr-defined]
-        handle = kernel32.OpenProcess(0x1000, False, pid)  # PROCESS_QUERY_LIMITED_INFORMATION
-        if not handle:
-            return False
-        code = ctypes.c_ulong()
-        running = kernel32.GetExitCodeProcess(handle, ctypes.byref(code)) and code.value == 259
-        kernel32.CloseHandle(handle)
-        return bool(running)
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process
-        return True
-    return True
-
-
-def remove_stale_temporaries(folder: str | Path) -> list[Path]:
-    """Delete the hidden temporary files and folders (``.<name>.tmp.<pid>``, ``.staging.<pid>``,
-    ``.replaced.<pid>``) in ``folder`` whose process no longer runs; return what was removed.
-    Those of running processes (another training writing here) are left alone."""
-    folder = Path(folder)
-    removed = []
-    for path in sorted(folder.iterdir()) if folder.is_dir() else []:
-        pid = path.name.rsplit(".", 1)[-1]
-        if not (path.name.startswith(".") and pid.isdigit()) or process_alive(int(pid)):
-            continue
-        if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path)
-        else:
-            path.unlink()
-        removed.append(path)
-    return removed
 
 
 # ---------------------------------------------- worker processes and the progress line

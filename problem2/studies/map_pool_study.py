@@ -38,6 +38,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from safety import make_console_safe, temporary_path_for, use_reproducible_matmul, write_json_atomic
+
 import numpy as np
 import torch
 from analysis.baselines import POLICY_LABELS
@@ -54,10 +56,9 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED
-from safety import make_console_safe, temporary_path_for, use_reproducible_matmul, write_json_atomic
 from settings import MODES, SettingError, available_cores, check_value, int_in, usage, validated
 
-from studies.pool_training import POOL_RULES, PoolConfig, PoolTrainer
+from studies.pool_training import PoolConfig, PoolTrainer
 from studies.staging import (
     best_env_steps,
     best_selection,
@@ -382,7 +383,7 @@ def parse_args(argv: list[str] | None) -> tuple[PoolConfig, argparse.Namespace]:
         # Flags turned into other fields are checked by their field's rule alone.
         check_field("num_seeds", args.num_seeds)  # the seeds 0..num_seeds-1
         check_field("output_dir", str(args.output_dir))  # the study's own folder
-        cfg = validated(PoolConfig(**settings), POOL_RULES)
+        cfg = validated(PoolConfig(**settings))
     except SettingError as error:
         parser.error(usage(error))
     return cfg, args

@@ -30,9 +30,10 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+
 import numpy as np
 from analysis.interventions import channel_verdict
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 
 from studies.panel_outputs import plot_effects
 

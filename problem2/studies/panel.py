@@ -36,6 +36,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+
 import numpy as np
 import torch
 from analysis.baselines import int_list
@@ -50,7 +52,6 @@ from analysis.stats import (
 from batch.plumbing import ProgressLine, run_jobs
 from grid_maps import DEFAULT_MAP_SEED, OBSTACLE, TARGET
 from rollout import EVAL_EPSILON, EVAL_SEED
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 from settings import available_cores
 
 from studies.panel_behaviour import BEHAVIOUR, beacon_behaviour, mode_behaviour, seed_behaviour

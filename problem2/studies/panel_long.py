@@ -19,13 +19,15 @@ import json
 from pathlib import Path
 from typing import Any
 
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+
+import train
 from analysis.pipeline import CONDITIONS, evaluate_experiment
 from analysis.runs import read_experiment
 from analysis.stats import seed_paired_differences, seed_statistics
-from batch.experiments import read_csv, run_experiments
 from rollout import EVAL_EPSILON
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
-from settings import BatchConfig
+from settings import TrainConfig
+from train import read_csv
 
 from studies.panel import PANEL_DIR
 
@@ -53,8 +55,8 @@ def run_check(panel_dir: Path, num_episodes: int, total_steps: int) -> dict[str,
     panel = json.loads((panel_dir / "panel.json").read_text(encoding="utf-8"))
     map_seed = hardest_map(panel)
     seeds = panel["maps"][str(map_seed)]["seeds"][MODE]
-    default = BatchConfig()
-    cfg = BatchConfig(
+    default = TrainConfig()
+    cfg = TrainConfig(
         mode=MODE,
         map_seed=map_seed,
         seeds=list(seeds),
@@ -62,7 +64,7 @@ def run_check(panel_dir: Path, num_episodes: int, total_steps: int) -> dict[str,
         overwrite=True,
         output_dir=str(panel_dir / "long" / f"map{map_seed}"),
     )
-    run_experiments(cfg)  # checks every setting first
+    train.main(cfg=cfg)  # checks every setting first
     batch = Path(cfg.output_dir)
     experiment = read_experiment(f"panel/long/map{map_seed}", batch / "agent_models")
     outcome = evaluate_experiment(experiment, num_episodes, EVAL_EPSILON)
@@ -102,7 +104,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "--total_steps",
         "--total-steps",
         type=int,
-        default=BUDGET_FACTOR * BatchConfig().total_steps,
+        default=BUDGET_FACTOR * TrainConfig().total_steps,
         help="env steps per long run (default: twice the panel's)",
     )
     args = parser.parse_args(argv)

@@ -9,10 +9,11 @@ import csv
 from pathlib import Path
 from typing import Any
 
+from safety import temporary_path_for
+
 import numpy as np
 from analysis.plots import save_figure
 from matplotlib.figure import Figure
-from safety import temporary_path_for
 
 MODE_ORDER = ("independent", "comm", "distance", "full")
 ASSIGNMENT_MAP = 641

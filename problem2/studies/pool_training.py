@@ -1,28 +1,26 @@
 """Training on a pool of generated maps: the extensions of the core learner that the map-pool
 and memory studies use, none of them part of the assignment's recipe.
 
-* :class:`PoolConfig`: :class:`~settings.BatchConfig` with the pool's settings (the pool
+* :class:`PoolConfig`: :class:`~settings.TrainConfig` with the pool's settings (the pool
   size, validation maps, parameter sharing, the coverage and on-target bonuses).
 * :class:`PooledVectorEnv`: the vectorised environment whose copies draw a map from the pool
   at every episode start, and which can count the grid cells the agents have seen.
-* :class:`PoolTrainer`: the core learner (:class:`~batch.experiments.SavingTrainer`) on such
+* :class:`PoolTrainer`: the core learner (:class:`~trainer.DQNTrainer`) on such
   environments (validated on other generated maps), with the bonuses added to the learning
   reward and, with ``share_weights``, one set of weights for both agents.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch
 from analysis.map_sets import MAX_POOL_SIZE, training_maps, validation_maps
-from batch.experiments import SavingTrainer
 from grid_maps import FREE, OBSTACLE, OFF_GRID, TARGET, check_grid, reaches_target
-from settings import RULES, BatchConfig, boolean, int_in, number_in
-from train_config import setting
+from settings import NON_NEGATIVE, TrainConfig, boolean, int_in, setting
+from trainer import DQNTrainer
 from vector_env import VectorMultiAgentEnv
 
 
@@ -54,7 +52,7 @@ def check_grid_stack(maps: np.ndarray, name: str = "maps") -> np.ndarray:
 
 
 @dataclass
-class PoolConfig(BatchConfig):
+class PoolConfig(TrainConfig):
     """The core settings and those of training on a map pool."""
 
     map_pool: int = setting(
@@ -62,34 +60,30 @@ class PoolConfig(BatchConfig):
         "0: train on the --map_seed map; N > 0: on a pool of N generated maps "
         "(analysis/map_sets.py), a new one drawn at each episode start, evaluated on other "
         "generated maps",
+        int_in(0, MAX_POOL_SIZE),
     )
     validation_maps: int = setting(
         200,
         "with --map_pool: generated validation maps of the periodic evaluations (1 or more)",
+        int_in(1, MAX_POOL_SIZE),
     )
     share_weights: bool = setting(
         False,
         "parameter sharing: both agents use one set of weights (same start, summed gradient), "
         "a departure from the assignment's independent learners",
+        boolean,
     )
     coverage_bonus: float = setting(
         0.0,
         "reward shaping for learning only (>= 0): added per grid cell that enters either "
         "agent's 3x3 view for the first time in the episode",
+        NON_NEGATIVE,
     )
     on_target_bonus: float = setting(
         0.0,
         "reward shaping for learning only (>= 0): added per agent standing on the target",
+        NON_NEGATIVE,
     )
-
-
-POOL_RULES = RULES | {  # the rules of PoolConfig's own fields (settings.validated)
-    "map_pool": int_in(0, MAX_POOL_SIZE),
-    "validation_maps": int_in(1, MAX_POOL_SIZE),
-    "share_weights": boolean,
-    "coverage_bonus": number_in(0.0, math.inf, high_open=True),
-    "on_target_bonus": number_in(0.0, math.inf, high_open=True),
-}
 
 
 class PooledVectorEnv(VectorMultiAgentEnv):
@@ -207,7 +201,7 @@ class CurriculumEnv(PooledVectorEnv):
         super()._start_episodes(rows[chosen], starts)
 
 
-class PoolTrainer(SavingTrainer):
+class PoolTrainer(DQNTrainer):
     """The core learner on a map pool (``cfg`` a :class:`PoolConfig`), with the pool's
     shaping and optional parameter sharing."""
 

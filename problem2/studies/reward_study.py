@@ -25,6 +25,8 @@ import argparse
 import json
 from pathlib import Path
 
+from safety import use_reproducible_matmul, write_json_atomic
+
 import numpy as np
 import torch
 from analysis.baselines import target_distances
@@ -34,7 +36,6 @@ from analysis.runs import Experiment, load_model_pair, read_experiment
 from analysis.stats import seed_statistics
 from grid_maps import DEFAULT_MAP_SEED, TARGET, generate_map
 from rollout import EVAL_EPSILON, EVAL_SEED
-from safety import use_reproducible_matmul, write_json_atomic
 from vector_env import VectorMultiAgentEnv
 
 from studies import joint_dp

@@ -71,9 +71,9 @@ def plot_study(study: dict, path: Path) -> None:
     mode; filled: trained on the assignment's reward, hollow: on the arrival reward), one
     panel per condition; the exact-DP optima (DP) in black. Drawn at the width the report prints
     it (4.9 in)."""
-    from batch.experiments import MODE_COLOURS
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
+    from train import MODE_COLOURS
 
     fig = Figure(figsize=(4.9, 4.3), layout="constrained")
     axes = fig.subplots(1, 2, sharey=True)

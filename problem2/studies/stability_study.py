@@ -22,15 +22,16 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from safety import use_reproducible_matmul, write_json_atomic
+
 import numpy as np
 import torch
 import train
 from analysis.episodes import EvaluationSetting, model_policy, recorded_episodes
 from analysis.failures import arrivals
 from analysis.runs import load_map, load_model_pair
-from batch.experiments import read_csv
 from rollout import VALIDATION_SEED
-from safety import use_reproducible_matmul, write_json_atomic
+from train import read_csv
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "stability"
 SEEDS = (100, 101, 102, 103)  # training seeds: never the reported 641-650

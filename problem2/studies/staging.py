@@ -1,7 +1,7 @@
 """What the studies share: an output folder written whole (everything goes into a staging
 folder beside it, which replaces the folder only when the block succeeds: an interrupted
 study leaves the previous results, never half of new ones), the timing file, a study
-flag checked by a BatchConfig field's rule, a run trained into a folder with its progress
+flag checked by a TrainConfig field's rule, a run trained into a folder with its progress
 reported, and the checkpoint a trainer selected."""
 
 from __future__ import annotations
@@ -14,8 +14,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from batch.plumbing import remove_stale_temporaries
 from safety import write_json_atomic
+
+from batch.plumbing import remove_stale_temporaries
 from settings import check_setting
 from trainer import DQNTrainer
 
@@ -55,7 +56,7 @@ def write_timing(path: Path, runs: list[dict[str, Any]]) -> None:
 
 
 def check_field(name: str, value: Any) -> None:
-    """Raise ``SettingError`` if ``value`` breaks BatchConfig field ``name``'s rule (checked
+    """Raise ``SettingError`` if ``value`` breaks TrainConfig field ``name``'s rule (checked
     alone: for a flag that is turned into other fields, e.g. a study's seed count)."""
     check_setting(name, value)
 

@@ -32,9 +32,7 @@ SMALL = dict(map_pool=20, validation_maps=4, num_envs=8, seed=0)
 
 def config(tmp_path: Path, mode: str = "full", **options) -> BeaconConfig:
     fields = beacon_screen.map_pool_study.RECIPE | {"seeds": [], "workers": 1} | SMALL
-    cfg = beacon_screen.validated(
-        BeaconConfig(**fields | options, mode=mode), beacon_screen.BEACON_RULES
-    )
+    cfg = beacon_screen.validated(BeaconConfig(**fields | options, mode=mode))
     cfg.output_dir = str(tmp_path)
     return cfg
 

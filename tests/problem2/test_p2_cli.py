@@ -13,8 +13,9 @@ from pathlib import Path
 
 import pytest
 from batch.plumbing import ProgressLine
-from settings import RULES, BatchConfig, SettingError, validated
-from studies.pool_training import POOL_RULES, PoolConfig
+from settings import SettingError, TrainConfig, validated
+from studies.one_step.beacon import BeaconConfig
+from studies.pool_training import PoolConfig
 
 from tests.conftest import PROBLEM2, load_problem_module
 
@@ -118,14 +119,14 @@ def test_every_bad_setting_is_reported_not_only_the_first(tmp_path: Path, capsys
 
 def test_a_relation_is_checked_beside_single_settings_but_not_on_an_invalid_one() -> None:
     with pytest.raises(SettingError) as error:
-        validated(BatchConfig(gamma=2.0, epsilon_start=0.1, epsilon_end=0.5))
+        validated(TrainConfig(gamma=2.0, epsilon_start=0.1, epsilon_end=0.5))
     assert [name for name, _, _ in error.value.problems] == ["gamma", "epsilon_end"]
     assert (error.value.name, error.value.value) == ("gamma", 2.0)  # the first problem
     assert (
         str(error.value).splitlines()[1] == "epsilon_end must not exceed epsilon_start 0.1, got 0.5"
     )
     with pytest.raises(SettingError) as error:
-        validated(BatchConfig(epsilon_start=2.0, epsilon_end=0.5))  # no comparison with 2.0
+        validated(TrainConfig(epsilon_start=2.0, epsilon_end=0.5))  # no comparison with 2.0
     assert [name for name, _, _ in error.value.problems] == ["epsilon_start"]
 
 
@@ -140,7 +141,7 @@ def test_output_dir_that_is_a_file_is_refused(tmp_path: Path, capsys) -> None:
 def test_settings_from_python_are_checked_too() -> None:
     for bad in ({"lr": "0.1"}, {"keep_best": 1}, {"eval_episodes": 2.0}, {"seeds": [1, True]}):
         with pytest.raises(ValueError, match=next(iter(bad))):
-            validated(BatchConfig(**bad))
+            validated(TrainConfig(**bad))
 
 
 def test_list_flags_accept_spaces_and_commas_and_every_flag_its_dashed_spelling() -> None:
@@ -160,13 +161,13 @@ def test_list_flags_accept_spaces_and_commas_and_every_flag_its_dashed_spelling(
 
 
 def test_skeleton_grid_size_list_means_the_same_grid() -> None:
-    assert validated(BatchConfig(grid_size=[10, 10])).grid_size == 10
-    assert validated(BatchConfig(grid_size=[6, 9])).grid_shape() == (6, 9)
+    assert validated(TrainConfig(grid_size=[10, 10])).grid_size == 10
+    assert validated(TrainConfig(grid_size=[6, 9])).grid_shape() == (6, 9)
 
 
 def test_workers_default_to_the_available_cores() -> None:
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    assert BatchConfig().workers == cores
+    assert TrainConfig().workers == cores
 
 
 def run_train(args: list[str], cwd: Path, encoding: str | None = None, timeout: float = 300):
@@ -256,11 +257,17 @@ def test_progress_without_terminal_prints_a_plain_line_every_interval() -> None:
     assert lines[-1].startswith("[0/1 runs] 2,500/10,000 env steps")
 
 
-def test_every_setting_has_one_rule_and_every_rule_a_setting() -> None:
-    for config, rules in ((BatchConfig, RULES), (PoolConfig, POOL_RULES)):
-        assert list(rules) == [spec.name for spec in dataclasses.fields(config)]
+def test_every_setting_is_declared_with_its_check_and_help() -> None:
+    for config in (TrainConfig, PoolConfig, BeaconConfig):
+        for spec in dataclasses.fields(config):
+            assert callable(spec.metadata["check"]), spec.name
+            assert spec.metadata["help"], spec.name
 
 
-def test_a_setting_without_a_rule_is_refused_before_its_value_is_read() -> None:
-    with pytest.raises(TypeError, match="no rule for the setting map_pool of PoolConfig"):
-        validated(PoolConfig())  # the pool's own fields need POOL_RULES
+def test_a_setting_without_a_check_is_refused_before_its_value_is_read() -> None:
+    @dataclasses.dataclass
+    class Unchecked(TrainConfig):
+        extra: int = dataclasses.field(default=1, metadata={"help": "no check"})
+
+    with pytest.raises(TypeError, match="no check for the setting extra of Unchecked"):
+        validated(Unchecked())

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from analysis.runs import discover_experiments, resolve_checkpoint
 from batch import experiments
-from settings import BatchConfig, SettingError, validated
+from settings import SettingError, TrainConfig, validated
 
 from tests.conftest import PROBLEM1, PROBLEM2, ROOT, load_problem_module
 
@@ -44,7 +44,7 @@ def refusal(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
 )
 def test_a_budget_that_ends_before_the_first_update_is_refused(settings, field) -> None:
     with pytest.raises(SettingError) as error:
-        validated(BatchConfig(**settings))
+        validated(TrainConfig(**settings))
     assert error.value.name == field
     assert "learning_starts 5000" in error.value.problem and "no update" in error.value.problem
 
@@ -60,7 +60,7 @@ def test_a_budget_that_ends_before_the_first_update_is_refused(settings, field) 
     ],
 )
 def test_a_budget_that_reaches_the_first_update_is_accepted(settings) -> None:
-    assert validated(BatchConfig(**settings)) is not None
+    assert validated(TrainConfig(**settings)) is not None
 
 
 def test_the_command_line_names_the_flag_and_the_fix_and_writes_nothing(
@@ -124,7 +124,7 @@ def test_a_folder_inside_the_code_is_refused_even_with_overwrite(
     assert not (PROBLEM2 / "analysis" / "new_run").exists()
     for folder in ("../report", "../problem1/results/x", ".", ".."):
         with pytest.raises(SettingError):
-            experiments.check_output_dir(BatchConfig(output_dir=folder, overwrite=True))
+            experiments.check_output_dir(TrainConfig(output_dir=folder, overwrite=True))
 
 
 def test_a_folder_of_other_files_is_refused_naming_it(
@@ -144,9 +144,9 @@ def test_a_folder_of_other_files_is_refused_naming_it(
 def test_a_new_empty_or_batch_folder_is_accepted(tmp_path: Path, entries: list[str]) -> None:
     for name in entries:
         (tmp_path / "run" / name).mkdir(parents=True)
-    experiments.check_output_dir(BatchConfig(output_dir=str(tmp_path / "run"), overwrite=True))
-    experiments.check_output_dir(BatchConfig(output_dir=str(tmp_path / "new" / "run")))
-    default = BatchConfig()  # the committed results folder, its studies beside the batch
+    experiments.check_output_dir(TrainConfig(output_dir=str(tmp_path / "run"), overwrite=True))
+    experiments.check_output_dir(TrainConfig(output_dir=str(tmp_path / "new" / "run")))
+    default = TrainConfig()  # the committed results folder, its studies beside the batch
     experiments.check_output_dir(default)
 
 

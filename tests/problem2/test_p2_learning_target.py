@@ -13,7 +13,7 @@ from analysis.runs import load_policy
 from grid_maps import TARGET
 from multi_agent_env import MultiAgentEnv
 from replay import sample_batch
-from train_config import TrainConfig
+from settings import TrainConfig
 
 from tests.conftest import load_problem_module
 

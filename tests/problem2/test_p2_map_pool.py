@@ -15,7 +15,7 @@ from grid_maps import DEFAULT_MAP_SEED, generate_map
 from multi_agent_env import MultiAgentEnv
 from settings import validated
 from studies import map_pool_study
-from studies.pool_training import POOL_RULES, PoolConfig, PooledVectorEnv, PoolTrainer
+from studies.pool_training import PoolConfig, PooledVectorEnv, PoolTrainer
 from vector_env import VectorMultiAgentEnv
 
 MAPS = np.stack([generate_map((10, 10), seed) for seed in (0, 1, 2, 3)])
@@ -139,7 +139,6 @@ def pool_trainer(tmp_path: Path, **settings) -> PoolTrainer:
             output_dir=str(tmp_path),
             **{"target_potential": 0.0} | settings,  # the study's recipe: no arrival term
         ),
-        POOL_RULES,
     )
     return PoolTrainer(MultiAgentEnv(seed=641), cfg)
 
@@ -222,7 +221,7 @@ def tiny_study_config(**settings) -> PoolConfig:
         workers=1,
         max_steps=12,
     )
-    return validated(PoolConfig(**map_pool_study.RECIPE | tiny | settings), POOL_RULES)
+    return validated(PoolConfig(**map_pool_study.RECIPE | tiny | settings))
 
 
 def test_tiny_study_end_to_end_and_reproducible(tmp_path: Path) -> None:

@@ -26,7 +26,7 @@ from studies.memory.agents import (
 )
 from studies.memory.held_out_tests import memory_cic, memory_states
 from studies.memory.learner import CURRICULUM_END, CurriculumEnv, Levers, RecurrentTrainer
-from studies.pool_training import POOL_RULES, PoolConfig, PooledVectorEnv
+from studies.pool_training import PoolConfig, PooledVectorEnv
 from vector_env import VectorMultiAgentEnv
 
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.\\w+` is deprecated:DeprecationWarning")
@@ -118,7 +118,6 @@ def small_trainer(tmp_path: Path, mode: str, **settings: object) -> RecurrentTra
             }
             | settings,
         ),
-        POOL_RULES,
     )
     return RecurrentTrainer(MultiAgentEnv(max_steps=12), cfg, mode)
 

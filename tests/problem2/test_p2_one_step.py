@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from batch.experiments import run_experiments
+import train
 from rollout import run_episodes
-from settings import BatchConfig
+from settings import TrainConfig
 from studies.memory.agents import memory_policy
 from studies.one_step import why
 from studies.one_step.agents import (
@@ -72,7 +72,7 @@ def test_augment_puts_message_and_distance_last() -> None:
     np.testing.assert_array_equal(out[..., MOVE], [[[0] * 5, [0, 0, 0, 0, 1]]])
 
 
-def small_config(mode: str, output_dir: Path, **kw: object) -> BatchConfig:
+def small_config(mode: str, output_dir: Path, **kw: object) -> TrainConfig:
     settings = dict(
         mode=mode,
         map_seed=4,
@@ -86,7 +86,7 @@ def small_config(mode: str, output_dir: Path, **kw: object) -> BatchConfig:
         output_dir=str(output_dir),
         workers=1,
     )
-    return BatchConfig(**(settings | kw))
+    return TrainConfig(**(settings | kw))
 
 
 def make_trainer(mode: str, tmp_path: Path) -> OneStepMemoryTrainer:
@@ -165,7 +165,7 @@ def test_tiny_batch_trains_exports_and_reproduces_bytes(tmp_path: Path) -> None:
     files = {}
     for name in ("first", "second"):  # 1200 steps: updates from step 500 on, as with more
         cfg = small_config("independent,full", tmp_path / name, total_steps=1200)
-        finals = run_experiments(cfg, trainer_class=OneStepMemoryTrainer)
+        finals = train.main(cfg=cfg, trainer_class=OneStepMemoryTrainer)
         assert [(f["mode"], f["seed"]) for f in finals] == [("independent", 641), ("full", 641)]
         models = tmp_path / name / "agent_models"
         files[name] = {p.name: p.read_bytes() for p in sorted(models.glob("*_seed*.pt"))}

@@ -10,9 +10,8 @@ import pytest
 import torch
 from multi_agent_env import MultiAgentEnv
 from replay import TransitionBatch
-from settings import validated
+from settings import TrainConfig, validated
 from torch import nn
-from train_config import TrainConfig
 from trainer import DQNTrainer
 
 GAMMA = 0.9

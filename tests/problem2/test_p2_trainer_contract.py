@@ -14,9 +14,8 @@ from analysis.runs import load_policy
 from models import export_policy, observation_mask
 from multi_agent_env import MultiAgentEnv
 from rollout import VALIDATION_SEED, select_best
-from settings import validated
+from settings import TrainConfig, validated
 from studies.staging import best_env_steps, best_selection
-from train_config import TrainConfig
 
 from tests.conftest import load_problem_module, weights_of
 

@@ -16,7 +16,7 @@ from batch import experiments
 from models import AgentDQN, DuelingDQN, PairedQNetworks
 from multi_agent_env import MultiAgentEnv
 from rollout import evaluate_policy
-from settings import BatchConfig
+from settings import TrainConfig
 
 from tests.conftest import load_problem_module
 
@@ -45,7 +45,7 @@ TINY = [
 ]
 
 
-def tiny_config(*extra: str) -> BatchConfig:
+def tiny_config(*extra: str) -> TrainConfig:
     return parse_config([*TINY, *extra])
 
 
@@ -105,7 +105,7 @@ def test_observation_mask_zeroes_the_hidden_inputs() -> None:
 # ---------------------------------------------------------------------- configuration
 def test_every_field_has_a_flag_in_both_spellings_with_its_help_text() -> None:
     flags = build_parser()._option_string_actions
-    for spec in dataclasses.fields(BatchConfig):
+    for spec in dataclasses.fields(TrainConfig):
         help_text = spec.metadata["help"]
         assert help_text and "\n" not in help_text, f"field {spec.name} has no one-line help"
         for flag in (f"--{spec.name}", f"--{spec.name.replace('_', '-')}"):

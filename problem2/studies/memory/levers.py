@@ -22,17 +22,18 @@ import time
 from pathlib import Path
 from typing import Any
 
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+
 import numpy as np
 import torch
 from analysis.stats import seed_statistics
 from batch.plumbing import ProgressLine, run_jobs
 from multi_agent_env import MultiAgentEnv
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 from settings import SettingError, available_cores, usage, validated
 
 from studies.memory.learner import Levers, RecurrentTrainer
 from studies.memory.study import RECIPE, RESULTS
-from studies.pool_training import POOL_RULES, PoolConfig
+from studies.pool_training import PoolConfig
 from studies.staging import best_env_steps, best_selection, check_field, staged_output, train_into
 
 OUTPUT_DIR = RESULTS / "memory_levers"
@@ -120,7 +121,7 @@ def main(argv: list[str] | None = None) -> dict:
             f"--setting: unknown {', '.join(unknown)}; use all or some of {', '.join(SETTINGS)}"
         )
     try:
-        cfg = validated(PoolConfig(**RECIPE | {"seeds": [], "workers": args.workers}), POOL_RULES)
+        cfg = validated(PoolConfig(**RECIPE | {"seeds": [], "workers": args.workers}))
         check_field("workers", args.workers)
     except SettingError as error:
         parser.error(usage(error))

@@ -29,6 +29,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+
 import numpy as np
 import torch
 from analysis.failures import homing_shares
@@ -39,7 +41,6 @@ from batch.plumbing import ProgressLine, run_jobs
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 from settings import SettingError, available_cores, check_value, int_in, usage, validated
 
 from studies import map_pool_study
@@ -51,7 +52,7 @@ from studies.memory.held_out_tests import (
     held_out_results,
 )
 from studies.memory.learner import TRANSITIONS_PER_EPISODE, RecurrentTrainer
-from studies.pool_training import POOL_RULES, PoolConfig
+from studies.pool_training import PoolConfig
 from studies.staging import (
     best_env_steps,
     best_selection,
@@ -317,7 +318,7 @@ def parse_args(argv: list[str] | None) -> tuple[PoolConfig, argparse.Namespace]:
         check_value("episodes_per_map", args.episodes_per_map, int_in(1, 100_000))
         check_field("num_seeds", args.num_seeds)
         check_field("output_dir", str(args.output_dir))
-        cfg = validated(PoolConfig(**settings), POOL_RULES)
+        cfg = validated(PoolConfig(**settings))
     except SettingError as error:
         parser.error(usage(error))
     args.modes, args.seeds = modes, list(range(args.num_seeds))

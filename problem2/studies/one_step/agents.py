@@ -21,11 +21,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from batch.experiments import SavingTrainer
 from grid_maps import NUM_ACTIONS, check_step
 from models import MessagingQNetwork, exportable_copy, observation_mask, save_scripted
 from torch import nn
 from torch.nn import functional as F
+from trainer import DQNTrainer
 from vector_env import VectorMultiAgentEnv
 
 MEMORY_PARTS = ("observation", "move")  # what one step of memory holds
@@ -147,7 +147,7 @@ def export_one_step(
     return save_scripted(OneStepMemoryPolicy(network, mode, keep), path)
 
 
-class OneStepMemoryTrainer(SavingTrainer):
+class OneStepMemoryTrainer(DQNTrainer):
     """The core learner on :class:`OneStepMemoryEnv`'s 27-dim inputs, with the mode's
     channels hidden in both copies of the observation (:func:`memory_mask`).
 

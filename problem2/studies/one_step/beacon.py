@@ -32,7 +32,6 @@ default, so the map-pool recipe is unchanged without them) target that:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -41,13 +40,12 @@ import numpy as np
 import torch
 from models import MessagingQNetwork, save_scripted
 from multi_agent_env import MultiAgentEnv
-from settings import boolean, number_in
+from settings import FRACTION, NON_NEGATIVE, boolean, setting
 from torch import nn
-from train_config import setting
 
 from studies.one_step.agents import OneStepMemoryPolicy
 from studies.one_step.unseen import PooledOneStepEnv, PooledOneStepTrainer
-from studies.pool_training import POOL_RULES, PoolConfig
+from studies.pool_training import PoolConfig
 
 
 @dataclass
@@ -58,30 +56,26 @@ class BeaconConfig(PoolConfig):
         0.0,
         "share in [0, 1] of training episodes that start with one agent on the target "
         "(reverse curriculum); validation and test episodes are untouched",
+        FRACTION,
     )
     homing_potential: float = setting(
         0.0,
         "kappa >= 0 of the learning-only shaping gamma Phi(s') - Phi(s), Phi = kappa (1 - d) "
         "while exactly one agent is on the target",
+        NON_NEGATIVE,
     )
     distance_change: bool = setting(
         False,
         "remember the distance's change over the last step, in cells, instead of its "
         "previous value (computed inside the exported agent)",
+        boolean,
     )
     listening: float = setting(
         0.0,
         "lambda >= 0 of the positive-listening loss -lambda |softmax Q(o, m) - "
         "softmax Q(o, mean m)|_1 (comm and full)",
+        NON_NEGATIVE,
     )
-
-
-BEACON_RULES = POOL_RULES | {
-    "reverse_starts": number_in(0.0, 1.0),
-    "homing_potential": number_in(0.0, math.inf, high_open=True),
-    "distance_change": boolean,
-    "listening": number_in(0.0, math.inf, high_open=True),
-}
 
 
 def with_distance_change(

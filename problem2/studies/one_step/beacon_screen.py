@@ -21,16 +21,17 @@ import time
 from pathlib import Path
 from typing import Any
 
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+
 import torch
 from analysis.stats import seed_statistics
 from batch.plumbing import ProgressLine, run_jobs
 from multi_agent_env import MultiAgentEnv
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 from settings import SettingError, available_cores, usage, validated
 
 from studies import map_pool_study
 from studies.memory import study as gru_study
-from studies.one_step.beacon import BEACON_RULES, BeaconConfig, BeaconTrainer
+from studies.one_step.beacon import BeaconConfig, BeaconTrainer
 from studies.staging import best_env_steps, best_selection, staged_output, train_into
 
 SCREEN_DIR = gru_study.RESULTS / "beacon_screen"
@@ -81,7 +82,7 @@ def independent_twin(cell: str, cells: dict[str, dict[str, Any]]) -> str | None:
 def config(mode: str, seed: int, changes: dict[str, Any], smoke: dict[str, Any]) -> BeaconConfig:
     """The recipe for one run with the cell's ``changes`` (``smoke``: shortened runs)."""
     fields = map_pool_study.RECIPE | {"seeds": [], "workers": 1} | changes | smoke
-    return validated(BeaconConfig(**fields, mode=mode, seed=seed), BEACON_RULES)
+    return validated(BeaconConfig(**fields, mode=mode, seed=seed))
 
 
 def train_cell(

@@ -27,6 +27,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+
 import numpy as np
 import torch
 from analysis.episodes import recorded_episodes
@@ -38,7 +40,6 @@ from batch.plumbing import ProgressLine, run_jobs
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 from settings import available_cores
 from vector_env import VectorMultiAgentEnv
 

@@ -27,16 +27,17 @@ import time
 from pathlib import Path
 from typing import Any
 
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+
 import numpy as np
 import torch
+import train
 from analysis.baselines import int_list
 from analysis.episodes import explore_by_step, model_policy
 from analysis.stats import BOOTSTRAP_RESAMPLES, CONFIDENCE, mode_contrasts, seed_statistics
-from batch.experiments import run_experiments
 from batch.plumbing import ProgressLine, run_jobs
 from rollout import EVAL_EPSILON, EVAL_SEED, PolicyFn, run_episodes
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
-from settings import BatchConfig, available_cores
+from settings import TrainConfig, available_cores
 from vector_env import VectorMultiAgentEnv
 
 from studies.memory.agents import memory_policy
@@ -63,7 +64,7 @@ def train_map(map_seed: int, output_dir: Path, workers: int, total_steps: int | 
     )
     if total_steps is not None:
         settings["total_steps"] = total_steps
-    run_experiments(BatchConfig(**settings), trainer_class=OneStepMemoryTrainer)
+    train.main(cfg=TrainConfig(**settings), trainer_class=OneStepMemoryTrainer)
 
 
 def exploration(env: VectorMultiAgentEnv, epsilon: float, seed: int = EVAL_SEED) -> PolicyFn:

@@ -8,11 +8,12 @@ import math
 from pathlib import Path
 from typing import Any
 
+from safety import temporary_path_for
+
 import numpy as np
 from analysis.plots import save_figure
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
-from safety import temporary_path_for
 
 MODE_LABELS = {"independent": "ind", "comm": "comm", "distance": "dist", "full": "full"}
 MODE_COLORS = {

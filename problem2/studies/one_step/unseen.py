@@ -28,20 +28,21 @@ import time
 from pathlib import Path
 from typing import Any
 
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+
 import torch
 from analysis.runs import load_policy
 from analysis.stats import seed_statistics
 from batch.plumbing import ProgressLine, run_jobs
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 from settings import available_cores, validated
 
 from studies import map_pool_study
 from studies.memory import study as gru_study
 from studies.memory.held_out_tests import CONDITIONS, beacon_homing, held_out_results
 from studies.one_step.agents import OneStepMemoryEnv, OneStepMemoryTrainer
-from studies.pool_training import POOL_RULES, CurriculumEnv, PoolConfig, PoolTrainer
+from studies.pool_training import CurriculumEnv, PoolConfig, PoolTrainer
 from studies.staging import best_env_steps, best_selection, staged_output, train_into, write_timing
 
 RESULTS = gru_study.RESULTS
@@ -82,9 +83,7 @@ class PooledOneStepTrainer(OneStepMemoryTrainer, PoolTrainer):
 
 def recipe(**changes: Any) -> PoolConfig:
     """The map-pool study's recipe for one run, with ``changes``."""
-    return validated(
-        PoolConfig(**map_pool_study.RECIPE | {"seeds": [], "workers": 1} | changes), POOL_RULES
-    )
+    return validated(PoolConfig(**map_pool_study.RECIPE | {"seeds": [], "workers": 1} | changes))
 
 
 def train(cfg: PoolConfig, staging: Path, progress: Any, start: float) -> PooledOneStepTrainer:

@@ -31,17 +31,18 @@ import argparse
 import json
 from pathlib import Path
 
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+
 import numpy as np
 import torch
+import train
 from analysis.episodes import recorded_episodes
 from analysis.plots import EpisodeTrace, draw_map, draw_paths, episode_trace, save_figure
 from analysis.stats import seed_statistics
-from batch.experiments import run_experiments
 from grid_maps import TARGET
 from matplotlib.figure import Figure
 from rollout import EVAL_SEED, run_episodes
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
-from settings import BatchConfig, available_cores
+from settings import TrainConfig, available_cores
 from vector_env import VectorMultiAgentEnv
 
 from studies.memory.agents import memory_policy
@@ -82,8 +83,8 @@ def train_ablations(workers: int) -> None:
         for map_seed in MAPS:
             settings = dict(mode=MODE, map_seed=map_seed, seed=SEEDS[0], num_seeds=len(SEEDS))
             folder = ABLATIONS_DIR / part / f"map{map_seed}"
-            cfg = BatchConfig(**settings, overwrite=True, output_dir=str(folder), workers=workers)
-            run_experiments(cfg, trainer_class=trainer_class)
+            cfg = TrainConfig(**settings, overwrite=True, output_dir=str(folder), workers=workers)
+            train.main(cfg=cfg, trainer_class=trainer_class)
 
 
 class Intervened:
