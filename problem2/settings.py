@@ -25,8 +25,8 @@ from grid_maps import generate_map, is_integer
 from rollout import SELECT_BY
 from vector_env import REWARD_MODES
 
-MODES = ("independent", "comm", "full")  # the assignment's ablation: --mode all
-TRAINABLE_MODES = (*MODES, "distance")  # distance: patch + distance, the map panel's 2 x 2
+TRAINABLE_MODES = ("independent", "comm", "distance", "full")  # models.MASKED_INPUTS' order
+MODES = tuple(m for m in TRAINABLE_MODES if m != "distance")  # the assignment's: --mode all
 MAX_SEED = 2**32 - 1
 MAX_GRID_SIDE = 100
 RUN_ONLY_FIELDS = ("output_dir", "workers", "overwrite")  # where and how, not what
@@ -375,10 +375,11 @@ def check_value(name: str, value: Any, check: Check) -> None:
         raise SettingError(name, problem, value)
 
 
-def validated(cfg: TrainConfig) -> TrainConfig:
+def validated(cfg: TrainConfig, whole_run: bool = True) -> TrainConfig:
     """``cfg`` if every field passes the check it was declared with (a study's subclass
-    declares its own fields' checks the same way); otherwise :class:`SettingError` listing
-    every invalid field with its allowed range. A field without a check is a TypeError."""
+    declares its own fields' checks the same way) and, for a ``whole_run`` of ``train()``, its
+    budget reaches the first update; otherwise :class:`SettingError` listing every invalid
+    field with its allowed range. A field without a check is a TypeError."""
     problems = []
     for spec in dataclasses.fields(cfg):
         if spec.metadata.get("check") is None:
@@ -387,13 +388,15 @@ def validated(cfg: TrainConfig) -> TrainConfig:
         problem = spec.metadata["check"](value)
         if problem:
             problems.append((spec.name, problem, value))
-    problems += cross_field_problems(cfg, invalid={name for name, _, _ in problems})
+    problems += cross_field_problems(cfg, {name for name, _, _ in problems}, whole_run)
     if problems:
         raise SettingError(*problems[0], *problems[1:])
     return cfg
 
 
-def cross_field_problems(cfg: TrainConfig, invalid: Collection[str] = ()) -> list[Problem]:
+def cross_field_problems(
+    cfg: TrainConfig, invalid: Collection[str] = (), whole_run: bool = True
+) -> list[Problem]:
     """Settings that are each valid but break training together, as (name, problem, value);
     relations that read a field named in ``invalid`` are not checked."""
     problems = []
@@ -408,7 +411,7 @@ def cross_field_problems(cfg: TrainConfig, invalid: Collection[str] = ()) -> lis
         if readable(name, "batch_size") and getattr(cfg, name) < cfg.batch_size:
             problem = f"must be at least batch_size {cfg.batch_size}"
             problems.append((name, problem, getattr(cfg, name)))
-    if readable(*BUDGET_FIELDS):
+    if whole_run and readable(*BUDGET_FIELDS):
         problems += budget_problems(cfg)
     if readable("grid_size", "map_seed"):
         try:
@@ -512,9 +515,12 @@ def build_parser(cls: type = TrainConfig, **parser_options: Any) -> OneLineParse
     return parser
 
 
-def parse_config(argv: list[str] | None, parser: argparse.ArgumentParser) -> TrainConfig:
+def parse_config(
+    argv: list[str] | None = None, parser: argparse.ArgumentParser | None = None
+) -> TrainConfig:
     """Parse and validate: a bad value is a usage error naming, a line each, the flag, the
     value and the allowed range (exit status 2), before any work."""
+    parser = parser or build_parser()
     values = vars(parser.parse_args(argv))
     if isinstance(values.get("mode"), list):
         values["mode"] = ",".join(values["mode"])

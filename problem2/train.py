@@ -60,7 +60,8 @@ class MultiAgentTrainer(DQNTrainer):
         if settings.get("mode", "all") == "all":
             settings["mode"] = "full"
         settings.setdefault("output_dir", "results")  # like the skeleton
-        super().__init__(env, validated(TrainConfig(**settings)))
+        # The skeleton plays its own episodes (train_episode): no budget to check.
+        super().__init__(env, validated(TrainConfig(**settings), whole_run=False))
         self._episode_rollout = self.start_rollout(1, self.seed + 1)  # train_episode's env
 
     network_A = property(lambda self: self.online.agent(0), doc="A's network (a copy)")
@@ -245,6 +246,7 @@ def main(
     safety.use_reproducible_matmul()  # before the first matrix product
     safety.make_console_safe()
     parser = build_parser(
+        prog="train.py",
         description="Train the two agents (Problem 2).",
         epilog=OUTPUT_RULE,
         formatter_class=argparse.RawDescriptionHelpFormatter,  # the epilog's paragraphs kept

@@ -14,9 +14,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from safety import write_json_atomic
+from safety import remove_stale_temporaries, write_json_atomic
 
-from batch.plumbing import remove_stale_temporaries
 from settings import check_setting
 from trainer import DQNTrainer
 

@@ -16,9 +16,11 @@ import sys
 import time
 from pathlib import Path
 
+from safety import remove_stale_temporaries
+
 import pytest
 from batch import experiments  # the module train.py uses (monkeypatched below)
-from batch.plumbing import ProgressLine, remove_stale_temporaries, run_jobs
+from batch.plumbing import ProgressLine, run_jobs
 from rollout import select_best
 from settings import SettingError
 

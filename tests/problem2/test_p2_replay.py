@@ -346,7 +346,9 @@ def test_n_step_window_gives_each_step_its_discounted_k_step_return(n_step: int)
             "reward",
             "done",
             "discount",
-        } | ({"last_state_A", "last_state_B"} if n_step > 1 else set())
+            "last_state_A",
+            "last_state_B",
+        }
         assert all(complete[k].dtype == np.float32 for k in ("reward", "done", "discount"))
         count = len(complete["reward"])
         emitted += [{name: complete[name][i].squeeze() for name in names} for i in range(count)]
@@ -376,8 +378,5 @@ def test_n_step_window_gives_each_step_its_discounted_k_step_return(n_step: int)
         after = observations[want["last"] + 1, want["env"], :, 0]  # A's, then B's
         assert [got["next_state_A"], got["next_state_B"]] == pytest.approx(after.tolist())
         assert got["discount"] == pytest.approx(0.0 if want["terminal"] else gamma ** want["k"])
-        if n_step > 1:
-            before = observations[want["last"], want["env"], :, 0]
-            assert [got["last_state_A"], got["last_state_B"]] == pytest.approx(before.tolist())
-        else:  # one-step transitions leave last_state to the learner (it is the state)
-            assert "last_state_A" not in got
+        before = observations[want["last"], want["env"], :, 0]  # the state itself if n = 1
+        assert [got["last_state_A"], got["last_state_B"]] == pytest.approx(before.tolist())
