@@ -12,13 +12,12 @@ from __future__ import annotations
 import copy
 import hashlib
 import io
+import os
 import warnings
 import zipfile
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-
-from safety import temporary_path_for
 
 import numpy as np
 import torch
@@ -235,9 +234,15 @@ def save_scripted(module: nn.Module, path: str | Path) -> Path:
     buffer = io.BytesIO()
     with quiet_torchscript():
         torch.jit.save(torch.jit.script(module), buffer)
-    with temporary_path_for(path) as temporary:
+    final = Path(path)  # written aside, then renamed: never a half-written policy file
+    final.parent.mkdir(parents=True, exist_ok=True)
+    temporary = final.with_name(f".{final.name}.tmp.{os.getpid()}")
+    try:
         temporary.write_bytes(without_debug_sources(buffer.getvalue()))
-    return Path(path)
+        os.replace(temporary, final)
+    finally:
+        temporary.unlink(missing_ok=True)
+    return final
 
 
 def without_debug_sources(archive: bytes) -> bytes:

@@ -277,7 +277,9 @@ def install(staging: Path, root: Path) -> None:
     if stale:
         replaced.mkdir(exist_ok=True)
         os.replace(root / EVALUATION, replaced / EVALUATION)
-        print(f"removed {EVALUATION}/: it evaluated the replaced batch; run evaluate.py again")
+        print(
+            f"removed {root / EVALUATION}: it evaluated the replaced batch; run evaluate.py again"
+        )
     for sub in ("training_logs", "agent_models"):
         if (root / sub).exists():
             replaced.mkdir(exist_ok=True)

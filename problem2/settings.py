@@ -518,13 +518,9 @@ def build_parser(cls: type = TrainConfig, **parser_options: Any) -> OneLineParse
 def parse_config(
     argv: list[str] | None = None, parser: argparse.ArgumentParser | None = None
 ) -> TrainConfig:
-    """Parse and validate: a bad value is a usage error naming, a line each, the flag, the
-    value and the allowed range (exit status 2), before any work."""
-    parser = parser or build_parser()
-    values = vars(parser.parse_args(argv))
+    """Parse and validate; a bad value raises :class:`SettingError` (a ValueError) naming,
+    for each bad setting, the flag, the value and the allowed range."""
+    values = vars((parser or build_parser()).parse_args(argv))
     if isinstance(values.get("mode"), list):
         values["mode"] = ",".join(values["mode"])
-    try:
-        return validated(TrainConfig(**values))
-    except SettingError as error:
-        parser.error(usage(error))
+    return validated(TrainConfig(**values))

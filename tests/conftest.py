@@ -1,8 +1,9 @@
 """Shared test set-up.
 
 The graders import each problem's modules from inside its folder (``cd problem1``),
-so both problem folders go on ``sys.path``. Only ``train`` exists in both; load it
-with :func:`load_problem_module`, which gives each copy its own module name.
+so both problem folders go on ``sys.path``, problem2 first. Only ``train`` exists in both;
+load it with :func:`load_problem_module`: problem1's under its own module name, problem2's
+as ``train`` (the name its studies import and its worker processes unpickle).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ matplotlib.use("Agg")
 ROOT = Path(__file__).resolve().parent.parent
 PROBLEM1 = ROOT / "problem1"
 PROBLEM2 = ROOT / "problem2"
-for folder in (PROBLEM2, PROBLEM1):
+for folder in (PROBLEM1, PROBLEM2):
     if str(folder) not in sys.path:
         sys.path.insert(0, str(folder))
 
@@ -30,7 +31,10 @@ importlib.import_module("safety").use_reproducible_matmul()
 
 
 def load_problem_module(problem: str, name: str) -> ModuleType:
-    """Import ``<problem>/<name>.py`` under the unique name ``<problem>_<name>``."""
+    """Import ``<problem>/<name>.py`` under the unique name ``<problem>_<name>`` (problem2's
+    under its own name: its folder is first on the path)."""
+    if problem == "problem2":
+        return importlib.import_module(name)
     unique = f"{problem}_{name}"
     if unique in sys.modules:
         return sys.modules[unique]

@@ -14,10 +14,10 @@ from analysis import training_curves
 from analysis.baselines import POLICIES, POLICY_LABELS
 from analysis.estimate_plots import plot_measures
 from analysis.plots import message_range
-from batch.experiments import CURVE_REWARD_NAMES, CURVE_REWARDS
 from matplotlib.figure import Figure
 from studies import map_pool_study, reward_study
 from studies.memory import study as memory_study
+from train import CURVE_REWARD_NAMES, CURVE_REWARDS
 from vector_env import REWARD_MODES
 
 from tests.conftest import PROBLEM2

@@ -12,9 +12,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import safety
+
 import pytest
 from analysis.runs import discover_experiments, resolve_checkpoint
-from batch import experiments
 from settings import SettingError, TrainConfig, validated
 
 from tests.conftest import PROBLEM1, PROBLEM2, ROOT, load_problem_module
@@ -113,18 +114,26 @@ def test_each_flag_states_its_default_once() -> None:
 
 
 # ------------------------------------------------------------------ where a batch may go
+def check_output_dir(cfg: TrainConfig) -> None:
+    """The folder rule as train.py applies it to ``cfg``."""
+    root = Path(cfg.output_dir).resolve()
+    safety.check_output_dir(root, cfg.identity(), TrainConfig().identity(), cfg.overwrite)
+
+
 def test_a_folder_inside_the_code_is_refused_even_with_overwrite(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     monkeypatch.chdir(PROBLEM2)
     for folder, flags in (("analysis", []), ("analysis/new_run", ["--overwrite"])):
         message = refusal([*TINY.split(), "--output_dir", folder, *flags], capsys)
-        assert f"argument --output_dir: is inside the code ({PROBLEM2 / folder}" in message
+        code = f"is the code folder {PROBLEM2 / folder}" if "/" not in folder else ""
+        within = f"lies in the code folder {PROBLEM2 / 'analysis'}" if "/" in folder else ""
+        assert f"argument --output_dir: {code or within}:" in message
         assert "choose a folder for results" in message
     assert not (PROBLEM2 / "analysis" / "new_run").exists()
     for folder in ("../report", "../problem1/results/x", ".", ".."):
-        with pytest.raises(SettingError):
-            experiments.check_output_dir(TrainConfig(output_dir=folder, overwrite=True))
+        with pytest.raises(safety.FolderError):
+            check_output_dir(TrainConfig(output_dir=folder, overwrite=True))
 
 
 def test_a_folder_of_other_files_is_refused_naming_it(
@@ -144,10 +153,10 @@ def test_a_folder_of_other_files_is_refused_naming_it(
 def test_a_new_empty_or_batch_folder_is_accepted(tmp_path: Path, entries: list[str]) -> None:
     for name in entries:
         (tmp_path / "run" / name).mkdir(parents=True)
-    experiments.check_output_dir(TrainConfig(output_dir=str(tmp_path / "run"), overwrite=True))
-    experiments.check_output_dir(TrainConfig(output_dir=str(tmp_path / "new" / "run")))
+    check_output_dir(TrainConfig(output_dir=str(tmp_path / "run"), overwrite=True))
+    check_output_dir(TrainConfig(output_dir=str(tmp_path / "new" / "run")))
     default = TrainConfig()  # the committed results folder, its studies beside the batch
-    experiments.check_output_dir(default)
+    check_output_dir(default)
 
 
 # ---------------------------------------------------------- an evaluation goes with its batch
@@ -156,7 +165,7 @@ def fake_batch(folder: Path, digest: str) -> None:
     (folder / "agent_models").mkdir(parents=True)
     (folder / "training_logs").mkdir()
     runs = {"full_seed1": {"sha256": {"A": digest, "B": digest}}}
-    manifest = folder / "agent_models" / experiments.MANIFEST
+    manifest = folder / "agent_models" / safety.MANIFEST
     manifest.write_text(json.dumps({"runs": runs}), encoding="utf-8")
 
 
@@ -168,9 +177,9 @@ def test_replacing_a_batch_removes_the_evaluation_of_the_old_one(
     (root / "evaluation_results").mkdir()
     (root / "evaluation_results" / "performance.json").write_text("{}", encoding="utf-8")
     fake_batch(root / ".staging.1", "new")
-    experiments.install(root / ".staging.1", root)
+    safety.install(root / ".staging.1", root)
     assert sorted(p.name for p in root.iterdir()) == ["agent_models", "training_logs"]
-    assert "new" in (root / "agent_models" / experiments.MANIFEST).read_text(encoding="utf-8")
+    assert "new" in (root / "agent_models" / safety.MANIFEST).read_text(encoding="utf-8")
     assert f"removed {root / 'evaluation_results'}" in capsys.readouterr().out
 
 
@@ -179,7 +188,7 @@ def test_an_evaluation_of_byte_identical_models_stays(tmp_path: Path) -> None:
     fake_batch(root, "same")
     (root / "evaluation_results").mkdir()
     fake_batch(root / ".staging.1", "same")
-    experiments.install(root / ".staging.1", root)
+    safety.install(root / ".staging.1", root)
     assert sorted(p.name for p in root.iterdir()) == [
         "agent_models",
         "evaluation_results",

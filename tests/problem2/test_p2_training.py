@@ -12,7 +12,6 @@ import pytest
 import torch
 from analysis.baselines import random_policy
 from analysis.runs import load_map
-from batch import experiments
 from models import AgentDQN, DuelingDQN, PairedQNetworks
 from multi_agent_env import MultiAgentEnv
 from rollout import evaluate_policy
@@ -225,7 +224,7 @@ def test_smoke_run_writes_every_output(smoke_run: Path) -> None:
         for agent in "AB":
             assert (models / f"{mode}_seed641_agent_{agent}.pt").is_file()
             assert (models / f"{mode}_agent_{agent}.pt").is_file()
-        rows = experiments.read_csv(logs / f"{mode}_seed641.csv")
+        rows = train.read_csv(logs / f"{mode}_seed641.csv")
         assert rows[-1]["env_steps"] >= 1536
         assert {"loss", "mean_q", "eval_success_greedy", "eval_success_eps"} <= set(rows[0])
         final = json.loads((logs / f"{mode}_seed641_selection.json").read_text())
@@ -306,20 +305,21 @@ def test_full_agents_learn_on_a_small_map(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    ("flag", "owner"),
+    ("flag", "hint"),
     [
-        (["--map_pool", "5"], "studies.map_pool_study"),
-        (["--share-weights"], "studies.map_pool_study"),
-        (["--coverage_bonus", "0.1"], "studies.map_pool_study"),
-        (["--dueling"], "DuelingDQN remains"),
-        (["--prioritized"], "PrioritizedReplayBuffer remains"),
+        (["--total_step", "1000"], "(did you mean --total_steps?)"),
+        (["--num-episode", "5"], "(did you mean --num-episodes?)"),
+        (["--map_pool", "5"], "(did you mean --map_seed?)"),  # a study's flag, not train.py's
     ],
 )
-def test_flags_that_left_the_core_name_where_they_went(
-    flag: list[str], owner: str, capsys: pytest.CaptureFixture[str]
+def test_an_unknown_flag_is_one_line_with_the_closest_flag_and_the_help(
+    flag: list[str], hint: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
     with pytest.raises(SystemExit) as exit_info:
         train.main([*flag, "--output_dir", "unused"])
     assert exit_info.value.code == 2
-    error = capsys.readouterr().err
-    assert f"{flag[0]} is not a train.py flag any more" in error and owner in error
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == [
+        f"train.py: error: unrecognized arguments: {' '.join(flag)} {hint}",
+        "(see train.py --help)",
+    ]

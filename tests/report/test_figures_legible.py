@@ -62,7 +62,7 @@ def draw_problem1(out: Path) -> None:
 
 
 def draw_training_curves(out: Path) -> None:
-    from batch.experiments import plot_training_curves
+    from train import plot_training_curves
 
     manifest = read_json(P2_RESULTS / "agent_models" / "manifest.json")
     (out / "agent_models").mkdir()
