@@ -84,7 +84,6 @@ def write_json_atomic(path: str | Path, data: Any) -> None:
 # ------------------------------------------------------------------ the output folder
 PROBLEM2 = Path(__file__).resolve().parent
 REPOSITORY = PROBLEM2.parent
-DEFAULT_OUTPUT_DIR = PROBLEM2 / "results"
 MANIFEST = "manifest.json"  # written last: a folder with one holds a complete batch
 INTERRUPTED = "interrupted"
 EVALUATION = "evaluation_results"  # evaluate.py's outputs beside agent_models/
@@ -109,10 +108,10 @@ def code_folder(root: Path) -> Path | None:
     return None
 
 
-def foreign_entries(root: Path) -> list[str]:
-    """The visible entries of folder ``root`` that no batch writes (the default folder also
-    holds the studies)."""
-    allowed = {*BATCH_ENTRIES, *(["studies"] if root == DEFAULT_OUTPUT_DIR else [])}
+def foreign_entries(root: Path, default_dir: Path) -> list[str]:
+    """The visible entries of folder ``root`` that no batch writes (the default folder
+    ``default_dir`` also holds the studies)."""
+    allowed = {*BATCH_ENTRIES, *(["studies"] if root == default_dir else [])}
     if not root.is_dir():
         return []
     return sorted(p.name for p in root.iterdir() if p.name not in allowed and p.name[0] != ".")
@@ -134,12 +133,12 @@ def differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
 
 
 def check_output_dir(
-    root: Path, identity: dict[str, Any], default: dict[str, Any], overwrite: bool
+    root: Path, identity: dict[str, Any], overwrite: bool, default_dir: Path, default: dict
 ) -> None:
     """Refuse (:class:`FolderError`) a folder that is a file, lies in the code or holds other
     files; unless ``overwrite``, also one holding a batch of other settings than ``identity``
     (its manifest's), results without a manifest, or settings other than ``default`` in the
-    default results folder. A batch of identical settings is replaced."""
+    default results folder ``default_dir``. A batch of identical settings is replaced."""
     if root.exists() and not root.is_dir():
         raise FolderError(f"must be a folder, not a file ({root})")
     code = code_folder(root)
@@ -149,7 +148,7 @@ def check_output_dir(
             f"{where}: choose a folder for results, e.g. --output_dir my_run from problem2/ or "
             "a folder under problem2/results/"
         )
-    others = foreign_entries(root)
+    others = foreign_entries(root, default_dir)
     if others:
         shown = ", ".join(others[:5]) + (", ..." if len(others) > 5 else "")
         raise FolderError(
@@ -167,14 +166,14 @@ def check_output_dir(
             changed = ["its manifest.json is unreadable"]
         if changed:
             raise FolderError(f"holds a batch with other settings ({'; '.join(changed)}): {remedy}")
-    elif root != DEFAULT_OUTPUT_DIR and any(
+    elif root != default_dir and any(
         not p.name.startswith(".")
         for sub in ("agent_models", "training_logs")
         if (root / sub).is_dir()
         for p in (root / sub).iterdir()
     ):
         raise FolderError(f"holds results without a manifest.json (of an unknown batch): {remedy}")
-    if root == DEFAULT_OUTPUT_DIR and differences(default, identity):
+    if root == default_dir and differences(default, identity):
         raise FolderError(
             "is the default results folder (the committed results of the default settings), "
             f"and these settings differ ({'; '.join(differences(default, identity))}): {remedy}"

@@ -9,17 +9,18 @@ integer >= 1")."""
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
 import difflib
+import inspect
 import math
 import os
 import sys
+import textwrap
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-
-from safety import DEFAULT_OUTPUT_DIR
 
 from grid_maps import generate_map, is_integer
 from rollout import SELECT_BY
@@ -29,6 +30,7 @@ TRAINABLE_MODES = ("independent", "comm", "distance", "full")  # models.MASKED_I
 MODES = tuple(m for m in TRAINABLE_MODES if m != "distance")  # the assignment's: --mode all
 MAX_SEED = 2**32 - 1
 MAX_GRID_SIDE = 100
+DEFAULT_OUTPUT_DIR = Path(__file__).resolve().parent / "results"
 RUN_ONLY_FIELDS = ("output_dir", "workers", "overwrite")  # where and how, not what
 
 Check = Callable[[Any], str | None]
@@ -128,17 +130,30 @@ def available_cores() -> int:
 
 
 def setting(
-    default: Any, help: str, check: Check, items: tuple[Callable[[str], Any], str] | None = None
+    default: Any, check: Check, items: tuple[Callable[[str], Any], str] | None = None
 ) -> Any:
-    """A dataclass field declared once: its default, its one-line ``help`` and its ``check``;
-    ``items`` = (item type, metavar) makes its flag a list flag. A list default, or a function
-    (e.g. the core count), is built anew for each config."""
-    metadata = {"help": help, "check": check, "items": items}
+    """A dataclass field declared once: its default and its ``check`` (its help is the
+    docstring under it, :func:`field_help`); ``items`` = (item type, metavar) makes its flag a
+    list flag. A list default, or a function (e.g. the core count), is built anew for each
+    config."""
+    metadata = {"check": check, "items": items}
     if callable(default):
         return field(default_factory=default, metadata=metadata)
     if isinstance(default, list):
         return field(default_factory=lambda: list(default), metadata=metadata)
     return field(default=default, metadata=metadata)
+
+
+def field_help(cls: type) -> dict[str, str]:
+    """Each field's help: the docstring written under it in ``cls`` or a base class."""
+    helps: dict[str, str] = {}
+    for klass in reversed(cls.__mro__[:-1]):
+        body = ast.parse(textwrap.dedent(inspect.getsource(klass))).body[0].body
+        for field_node, doc in zip(body, body[1:], strict=False):
+            if isinstance(field_node, ast.AnnAssign) and isinstance(doc, ast.Expr):
+                text = doc.value.value if isinstance(doc.value, ast.Constant) else ""
+                helps[field_node.target.id] = " ".join(str(text).split())
+    return helps
 
 
 # ------------------------------------------------------------------ the settings
@@ -148,155 +163,100 @@ class TrainConfig:
     ``run_seeds()`` on one map, in ``workers`` processes; one run reads them with its own
     ``mode`` and ``seed``."""
 
-    mode: str = setting(
-        "all",
-        "independent (patch), comm (+ message), full (+ distance), all (these three) or a list; "
-        "distance (patch + distance) only when listed",
-        mode_list,
-        items=(str, "MODE"),
-    )
-    seed: int = setting(
-        641,
-        "first training seed (seed, seed + 1, ... unless --seeds is given)",
-        int_in(0, MAX_SEED),
-    )
-    num_seeds: int = setting(10, "number of training seeds per mode (1 or more)", int_in(1))
-    seeds: list[int] = setting(
-        [],
-        "explicit distinct training seeds (override --seed and --num_seeds)",
-        distinct_seeds,
-        items=(int, "SEED"),
-    )
-    map_seed: int = setting(
-        641, "seed of the map (obstacles and target) every run trains on", int_in(0, MAX_SEED)
-    )
-    grid_size: int | list[int] = setting(
-        10,
-        "grid side (--grid_size 10) or rows and columns (--grid_size 10 10)",
-        grid_sides,
-        items=(int, "N"),
-    )
-    max_steps: int = setting(
-        50, "episode time limit (a cut-off: the TD target bootstraps through it)", int_in(1)
-    )
-    reward_mode: str = setting(
-        "goal",
-        "team reward learned from (vector_env.team_rewards): goal (+10 / -0.1), per_step "
-        "(the assignment's +10 / +2 / -0.1) or arrival (+2 on an agent's first arrival)",
-        one_of(*REWARD_MODES),
-    )
-    total_steps: int = setting(
-        300_000, "env steps per run, summed over the parallel environments", int_in(1)
-    )
-    num_episodes: int = setting(
-        0, "if > 0, train this many episodes instead of --total_steps", int_in(0)
-    )
-    num_envs: int = setting(64, "parallel environments that collect experience", int_in(1))
-    batch_size: int = setting(128, "transitions per gradient update", int_in(1))
-    lr: float = setting(5e-4, "Adam learning rate at the start (finite, > 0)", POSITIVE)
-    lr_end_factor: float = setting(
-        0.03, "final learning rate, as a fraction of lr (linear decay)", FRACTION
-    )
-    gamma: float = setting(0.99, "discount factor, in [0, 1)", number_in(0.0, 1.0, high_open=True))
-    n_step: int = setting(
-        3, "rewards in each TD target (fewer where the episode ends first)", int_in(1)
-    )
-    epsilon_start: float = setting(1.0, "initial exploration rate, in [0, 1]", FRACTION)
-    epsilon_end: float = setting(0.05, "final exploration rate, in [0, epsilon_start]", FRACTION)
-    epsilon_decay: float = setting(
-        0.0,
-        "the skeleton's multiplicative factor in (0, 1): epsilon <- max(epsilon_end, epsilon * "
-        "factor) after each finished episode; 0 = linear schedule",
-        decay_factor,
-    )
-    epsilon_fraction: float = setting(
-        0.3,
-        "with --epsilon_decay 0: fraction of the run over which epsilon falls linearly",
-        number_in(0.0, 1.0, low_open=True),
-    )
-    hidden_dim: int = setting(128, "units of the hidden layer", int_in(1))
-    target_update: int = setting(
-        0,
-        "gradient updates (not episodes, not env steps) between hard copies into the target "
-        "networks; 0 = a soft update at --target_tau",
-        int_in(0),
-    )
-    target_tau: float = setting(
-        0.005,
-        "with --target_update 0: fraction of the way to the online network each target "
-        "network moves after every update",
-        number_in(0.0, 1.0, low_open=True),
-    )
-    buffer_size: int = setting(
-        100_000, "replay capacity, joint transitions (>= batch_size)", int_in(1)
-    )
-    learning_starts: int = setting(
-        5_000, "env steps before the first update (>= batch_size)", int_in(0)
-    )
-    updates_per_step: int = setting(
-        2, "gradient updates per step of the parallel environments", int_in(1)
-    )
-    max_grad_norm: float = setting(10.0, "gradient-norm clipping threshold (finite, > 0)", POSITIVE)
-    advantage_learning: float = setting(
-        0.95,
-        "alpha of advantage learning (Bellemare et al. 2016): the target minus alpha (max_b "
-        "Q(s, b) - Q(s, a)) widens the action gaps; 0 = plain Double DQN",
-        number_in(0.0, 1.0, high_open=True),
-    )
-    advantage_learning_ramp: float = setting(
-        0.3, "fraction of the run for alpha to rise from 0", number_in(0.0, 1.0, low_open=True)
-    )
-    comm_learning: str = setting(
-        "dial",
-        "dial: train the message head through the partner's TD loss; none: leave it untrained",
-        one_of("dial", "none"),
-    )
-    comm_noise: float = setting(
-        1.0, "std of the Gaussian noise on the message logit (DIAL)", NON_NEGATIVE
-    )
-    target_potential: float = setting(
-        4.0,
-        "potential-based shaping seen by learning only (Ng et al. 1999): Phi per agent on the "
-        "target, adding gamma Phi(s') - Phi(s); 0 = none",
-        NON_NEGATIVE,
-    )
-    potential_credit: str = setting(
-        "agent",
-        "whose arrivals the shaping pays each agent for: agent (its own; Devlin and Kudenko "
-        "2011) or team (both agents')",
-        one_of("agent", "team"),
-    )
-    eval_interval: int = setting(10_000, "env steps between periodic evaluations", int_in(1))
-    eval_episodes: int = setting(
-        200, "episodes of each periodic evaluation (validation episodes)", int_in(1)
-    )
-    final_eval_episodes: int = setting(
-        1000,
-        "validation episodes of the final evaluation that picks the best seed per mode",
-        int_in(1),
-    )
-    keep_best: bool = setting(
-        True, "end with the weights that scored best in the evaluations", boolean
-    )
-    select_by: str = setting(
-        "steps",
-        "what picks checkpoints and the best seed (greedy and epsilon = 0.05 means): steps "
-        "(fewest steps within one point of the best success), success or return",
-        one_of(*SELECT_BY),
-    )
-    save_freq: int = setting(
-        0, "environment steps between intermediate model saves (0: at the end only)", int_in(0)
-    )
-    output_dir: str = setting(
-        str(DEFAULT_OUTPUT_DIR),
-        "folder for agent_models/ and training_logs/, relative to the current folder "
-        "(default: problem2/results)",
-        folder,
-    )
-    workers: int = setting(
-        available_cores, "parallel training processes (default: the available cores)", int_in(1)
-    )
-    overwrite: bool = setting(False, "replace a batch with other settings in --output_dir", boolean)
+    mode: str = setting("all", mode_list, items=(str, "MODE"))
+    """independent (patch), comm (+ message), full (+ distance), all (these three) or a list;
+    distance (patch + distance) only when listed"""
+    seed: int = setting(641, int_in(0, MAX_SEED))
+    """first training seed (seed, seed + 1, ... unless --seeds is given)"""
+    num_seeds: int = setting(10, int_in(1))
+    """number of training seeds per mode (1 or more)"""
+    seeds: list[int] = setting([], distinct_seeds, items=(int, "SEED"))
+    """explicit distinct training seeds (override --seed and --num_seeds)"""
+    map_seed: int = setting(641, int_in(0, MAX_SEED))
+    """seed of the map (obstacles and target) every run trains on"""
+    grid_size: int | list[int] = setting(10, grid_sides, items=(int, "N"))
+    """grid side (--grid_size 10) or rows and columns (--grid_size 10 10)"""
+    max_steps: int = setting(50, int_in(1))
+    """episode time limit (a cut-off: the TD target bootstraps through it)"""
+    reward_mode: str = setting("goal", one_of(*REWARD_MODES))
+    """team reward learned from (vector_env.team_rewards): goal (+10 / -0.1), per_step (the
+    assignment's +10 / +2 / -0.1) or arrival (+2 on an agent's first arrival)"""
+    total_steps: int = setting(300_000, int_in(1))
+    """env steps per run, summed over the parallel environments"""
+    num_episodes: int = setting(0, int_in(0))
+    """if > 0, train this many episodes instead of --total_steps"""
+    num_envs: int = setting(64, int_in(1))
+    """parallel environments that collect experience"""
+    batch_size: int = setting(128, int_in(1))
+    """transitions per gradient update"""
+    lr: float = setting(5e-4, POSITIVE)
+    """Adam learning rate at the start (finite, > 0)"""
+    lr_end_factor: float = setting(0.03, FRACTION)
+    """final learning rate, as a fraction of lr (linear decay)"""
+    gamma: float = setting(0.99, number_in(0.0, 1.0, high_open=True))
+    """discount factor, in [0, 1)"""
+    n_step: int = setting(3, int_in(1))
+    """rewards in each TD target (fewer where the episode ends first)"""
+    epsilon_start: float = setting(1.0, FRACTION)
+    """initial exploration rate, in [0, 1]"""
+    epsilon_end: float = setting(0.05, FRACTION)
+    """final exploration rate, in [0, epsilon_start]"""
+    epsilon_decay: float = setting(0.0, decay_factor)
+    """the skeleton's multiplicative factor in (0, 1): epsilon <- max(epsilon_end, epsilon *
+    factor) after each finished episode; 0 = linear schedule"""
+    epsilon_fraction: float = setting(0.3, number_in(0.0, 1.0, low_open=True))
+    """with --epsilon_decay 0: fraction of the run over which epsilon falls linearly"""
+    hidden_dim: int = setting(128, int_in(1))
+    """units of the hidden layer"""
+    target_update: int = setting(0, int_in(0))
+    """gradient updates (not episodes, not env steps) between hard copies into the target networks;
+    0 = a soft update at --target_tau"""
+    target_tau: float = setting(0.005, number_in(0.0, 1.0, low_open=True))
+    """with --target_update 0: fraction of the way to the online network each target network moves
+    after every update"""
+    buffer_size: int = setting(100_000, int_in(1))
+    """replay capacity, joint transitions (>= batch_size)"""
+    learning_starts: int = setting(5_000, int_in(0))
+    """env steps before the first update (>= batch_size)"""
+    updates_per_step: int = setting(2, int_in(1))
+    """gradient updates per step of the parallel environments"""
+    max_grad_norm: float = setting(10.0, POSITIVE)
+    """gradient-norm clipping threshold (finite, > 0)"""
+    advantage_learning: float = setting(0.95, number_in(0.0, 1.0, high_open=True))
+    """alpha of advantage learning (Bellemare et al. 2016): the target minus alpha (max_b Q(s, b) -
+    Q(s, a)) widens the action gaps; 0 = plain Double DQN"""
+    advantage_learning_ramp: float = setting(0.3, number_in(0.0, 1.0, low_open=True))
+    """fraction of the run for alpha to rise from 0"""
+    comm_learning: str = setting("dial", one_of("dial", "none"))
+    """dial: train the message head through the partner's TD loss; none: leave it untrained"""
+    comm_noise: float = setting(1.0, NON_NEGATIVE)
+    """std of the Gaussian noise on the message logit (DIAL)"""
+    target_potential: float = setting(4.0, NON_NEGATIVE)
+    """potential-based shaping seen by learning only (Ng et al. 1999): Phi per agent on the target,
+    adding gamma Phi(s') - Phi(s); 0 = none"""
+    potential_credit: str = setting("agent", one_of("agent", "team"))
+    """whose arrivals the shaping pays each agent for: agent (its own; Devlin and Kudenko 2011) or
+    team (both agents')"""
+    eval_interval: int = setting(10_000, int_in(1))
+    """env steps between periodic evaluations"""
+    eval_episodes: int = setting(200, int_in(1))
+    """episodes of each periodic evaluation (validation episodes)"""
+    final_eval_episodes: int = setting(1000, int_in(1))
+    """validation episodes of the final evaluation that picks the best seed per mode"""
+    keep_best: bool = setting(True, boolean)
+    """end with the weights that scored best in the evaluations"""
+    select_by: str = setting("steps", one_of(*SELECT_BY))
+    """what picks checkpoints and the best seed (greedy and epsilon = 0.05 means): steps (fewest
+    steps within one point of the best success), success or return"""
+    save_freq: int = setting(0, int_in(0))
+    """environment steps between intermediate model saves (0: at the end only)"""
+    output_dir: str = setting(str(DEFAULT_OUTPUT_DIR), folder)
+    """folder for agent_models/ and training_logs/, relative to the current folder (default:
+    problem2/results)"""
+    workers: int = setting(available_cores, int_in(1))
+    """parallel training processes (default: the available cores)"""
+    overwrite: bool = setting(False, boolean)
+    """replace a batch with other settings in --output_dir"""
 
     def __post_init__(self) -> None:
         # --grid_size 10 and --grid_size 10 10 (the skeleton's list) mean the same grid.
@@ -496,14 +456,15 @@ class OneLineParser(argparse.ArgumentParser):
 def build_parser(cls: type = TrainConfig, **parser_options: Any) -> OneLineParser:
     """One flag per dataclass field, in both spellings, with the field's help and default."""
     parser = OneLineParser(allow_abbrev=False, **parser_options)
+    helps = field_help(cls)
     for spec in dataclasses.fields(cls):
         factory = spec.default_factory
         default = spec.default if factory is dataclasses.MISSING else factory()
         names = list(dict.fromkeys([f"--{spec.name}", f"--{spec.name.replace('_', '-')}"]))
         options: dict[str, Any] = {"dest": spec.name, "default": default}
         # A default that is a path of this machine or the core count: its help names it.
-        shown_default = "" if "(default:" in spec.metadata["help"] else " (default: %(default)s)"
-        options["help"] = spec.metadata["help"] + shown_default
+        shown_default = "" if "(default:" in helps[spec.name] else " (default: %(default)s)"
+        options["help"] = helps[spec.name] + shown_default
         if isinstance(default, bool):
             options["action"] = argparse.BooleanOptionalAction
         elif spec.metadata["items"]:

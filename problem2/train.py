@@ -33,7 +33,15 @@ import torch
 from grid_maps import NUM_ACTIONS, generate_map
 from models import observation_mask
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED, select_best
-from settings import SettingError, TrainConfig, build_parser, parse_config, usage, validated
+from settings import (
+    DEFAULT_OUTPUT_DIR,
+    SettingError,
+    TrainConfig,
+    build_parser,
+    parse_config,
+    usage,
+    validated,
+)
 from trainer import DQNTrainer
 from vector_env import VectorMultiAgentEnv
 
@@ -297,7 +305,7 @@ def main(
         cfg = validated(cfg) if cfg else parse_config(argv, parser)
         root = Path(cfg.output_dir).resolve()
         default = TrainConfig().identity()
-        safety.check_output_dir(root, cfg.identity(), default, cfg.overwrite)
+        safety.check_output_dir(root, cfg.identity(), cfg.overwrite, DEFAULT_OUTPUT_DIR, default)
     except SettingError as error:
         parser.error(usage(error))
     except safety.FolderError as error:

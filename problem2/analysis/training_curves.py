@@ -15,8 +15,9 @@ import json
 from pathlib import Path
 
 import safety  # noqa: F401  (first: checks the packages, stdlib only)
-from safety import DEFAULT_OUTPUT_DIR, MANIFEST, use_reproducible_matmul
+from safety import MANIFEST, use_reproducible_matmul
 
+from settings import DEFAULT_OUTPUT_DIR
 from train import curves_title, plot_training_curves
 
 

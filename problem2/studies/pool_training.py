@@ -55,35 +55,19 @@ def check_grid_stack(maps: np.ndarray, name: str = "maps") -> np.ndarray:
 class PoolConfig(TrainConfig):
     """The core settings and those of training on a map pool."""
 
-    map_pool: int = setting(
-        0,
-        "0: train on the --map_seed map; N > 0: on a pool of N generated maps "
-        "(analysis/map_sets.py), a new one drawn at each episode start, evaluated on other "
-        "generated maps",
-        int_in(0, MAX_POOL_SIZE),
-    )
-    validation_maps: int = setting(
-        200,
-        "with --map_pool: generated validation maps of the periodic evaluations (1 or more)",
-        int_in(1, MAX_POOL_SIZE),
-    )
-    share_weights: bool = setting(
-        False,
-        "parameter sharing: both agents use one set of weights (same start, summed gradient), "
-        "a departure from the assignment's independent learners",
-        boolean,
-    )
-    coverage_bonus: float = setting(
-        0.0,
-        "reward shaping for learning only (>= 0): added per grid cell that enters either "
-        "agent's 3x3 view for the first time in the episode",
-        NON_NEGATIVE,
-    )
-    on_target_bonus: float = setting(
-        0.0,
-        "reward shaping for learning only (>= 0): added per agent standing on the target",
-        NON_NEGATIVE,
-    )
+    map_pool: int = setting(0, int_in(0, MAX_POOL_SIZE))
+    """0: train on the --map_seed map; N > 0: on a pool of N generated maps (analysis/map_sets.py),
+    a new one drawn at each episode start, evaluated on other generated maps"""
+    validation_maps: int = setting(200, int_in(1, MAX_POOL_SIZE))
+    """with --map_pool: generated validation maps of the periodic evaluations (1 or more)"""
+    share_weights: bool = setting(False, boolean)
+    """parameter sharing: both agents use one set of weights (same start, summed gradient), a
+    departure from the assignment's independent learners"""
+    coverage_bonus: float = setting(0.0, NON_NEGATIVE)
+    """reward shaping for learning only (>= 0): added per grid cell that enters either agent's 3x3
+    view for the first time in the episode"""
+    on_target_bonus: float = setting(0.0, NON_NEGATIVE)
+    """reward shaping for learning only (>= 0): added per agent standing on the target"""
 
 
 class PooledVectorEnv(VectorMultiAgentEnv):

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 from batch.plumbing import ProgressLine
-from settings import SettingError, TrainConfig, validated
+from settings import SettingError, TrainConfig, field_help, validated
 from studies.one_step.beacon import BeaconConfig
 from studies.pool_training import PoolConfig
 
@@ -260,15 +260,17 @@ def test_progress_without_terminal_prints_a_plain_line_every_interval() -> None:
 
 def test_every_setting_is_declared_with_its_check_and_help() -> None:
     for config in (TrainConfig, PoolConfig, BeaconConfig):
+        helps = field_help(config)
         for spec in dataclasses.fields(config):
             assert callable(spec.metadata["check"]), spec.name
-            assert spec.metadata["help"], spec.name
+            assert len(helps[spec.name]) > 10, spec.name  # the docstring under the field
 
 
 def test_a_setting_without_a_check_is_refused_before_its_value_is_read() -> None:
     @dataclasses.dataclass
     class Unchecked(TrainConfig):
-        extra: int = dataclasses.field(default=1, metadata={"help": "no check"})
+        extra: int = dataclasses.field(default=1)
+        """no check"""
 
     with pytest.raises(TypeError, match="no check for the setting extra of Unchecked"):
         validated(Unchecked())

@@ -16,7 +16,6 @@ import sys
 import time
 from pathlib import Path
 
-import safety
 from safety import remove_stale_temporaries
 
 import pytest
@@ -159,7 +158,7 @@ def test_non_default_settings_do_not_go_into_the_default_folder(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     default = tmp_path / "results"
-    monkeypatch.setattr(safety, "DEFAULT_OUTPUT_DIR", default)
+    monkeypatch.setattr(train, "DEFAULT_OUTPUT_DIR", default)
     # Like the README's example (made tiny): it must not overwrite the default results.
     flags = [*TINY, "--seeds", "641", "642"]
     with pytest.raises(SystemExit) as exit_info:

@@ -16,7 +16,7 @@ import safety
 
 import pytest
 from analysis.runs import discover_experiments, resolve_checkpoint
-from settings import SettingError, TrainConfig, validated
+from settings import DEFAULT_OUTPUT_DIR, SettingError, TrainConfig, validated
 
 from tests.conftest import PROBLEM1, PROBLEM2, ROOT, load_problem_module
 
@@ -117,7 +117,8 @@ def test_each_flag_states_its_default_once() -> None:
 def check_output_dir(cfg: TrainConfig) -> None:
     """The folder rule as train.py applies it to ``cfg``."""
     root = Path(cfg.output_dir).resolve()
-    safety.check_output_dir(root, cfg.identity(), TrainConfig().identity(), cfg.overwrite)
+    default = TrainConfig().identity()
+    safety.check_output_dir(root, cfg.identity(), cfg.overwrite, DEFAULT_OUTPUT_DIR, default)
 
 
 def test_a_folder_inside_the_code_is_refused_even_with_overwrite(

@@ -15,7 +15,7 @@ from analysis.runs import load_map
 from models import AgentDQN, DuelingDQN, PairedQNetworks
 from multi_agent_env import MultiAgentEnv
 from rollout import evaluate_policy
-from settings import TrainConfig
+from settings import TrainConfig, field_help
 
 from tests.conftest import load_problem_module
 
@@ -104,8 +104,9 @@ def test_observation_mask_zeroes_the_hidden_inputs() -> None:
 # ---------------------------------------------------------------------- configuration
 def test_every_field_has_a_flag_in_both_spellings_with_its_help_text() -> None:
     flags = build_parser()._option_string_actions
+    helps = field_help(TrainConfig)
     for spec in dataclasses.fields(TrainConfig):
-        help_text = spec.metadata["help"]
+        help_text = helps[spec.name]
         assert help_text and "\n" not in help_text, f"field {spec.name} has no one-line help"
         for flag in (f"--{spec.name}", f"--{spec.name.replace('_', '-')}"):
             assert flags[flag].dest == spec.name and flags[flag].help.startswith(help_text)

@@ -52,30 +52,18 @@ from studies.pool_training import PoolConfig
 class BeaconConfig(PoolConfig):
     """The map-pool settings and the listener's training options (all off by default)."""
 
-    reverse_starts: float = setting(
-        0.0,
-        "share in [0, 1] of training episodes that start with one agent on the target "
-        "(reverse curriculum); validation and test episodes are untouched",
-        FRACTION,
-    )
-    homing_potential: float = setting(
-        0.0,
-        "kappa >= 0 of the learning-only shaping gamma Phi(s') - Phi(s), Phi = kappa (1 - d) "
-        "while exactly one agent is on the target",
-        NON_NEGATIVE,
-    )
-    distance_change: bool = setting(
-        False,
-        "remember the distance's change over the last step, in cells, instead of its "
-        "previous value (computed inside the exported agent)",
-        boolean,
-    )
-    listening: float = setting(
-        0.0,
-        "lambda >= 0 of the positive-listening loss -lambda |softmax Q(o, m) - "
-        "softmax Q(o, mean m)|_1 (comm and full)",
-        NON_NEGATIVE,
-    )
+    reverse_starts: float = setting(0.0, FRACTION)
+    """share in [0, 1] of training episodes that start with one agent on the target (reverse
+    curriculum); validation and test episodes are untouched"""
+    homing_potential: float = setting(0.0, NON_NEGATIVE)
+    """kappa >= 0 of the learning-only shaping gamma Phi(s') - Phi(s), Phi = kappa (1 - d) while
+    exactly one agent is on the target"""
+    distance_change: bool = setting(False, boolean)
+    """remember the distance's change over the last step, in cells, instead of its previous value
+    (computed inside the exported agent)"""
+    listening: float = setting(0.0, NON_NEGATIVE)
+    """lambda >= 0 of the positive-listening loss -lambda |softmax Q(o, m) - softmax Q(o, mean
+    m)|_1 (comm and full)"""
 
 
 def with_distance_change(
