@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from grid_maps import positive_int
-from vector_env import VectorMultiAgentEnv
+from vector_env import VectorMultiAgentEnv, team_rewards
 
 PolicyFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -25,12 +25,15 @@ VALIDATION_SEED = 6_000_000  # other start cells, for checkpoint and seed select
 
 @dataclass
 class EpisodeResults:
-    """Per-episode outcomes (E,); ``trajectories`` if recorded (``analysis.episodes``)."""
+    """Per-episode outcomes (E,): ``returns`` under the environment's reward, and
+    ``table_returns`` under the assignment's table (+10 / +2 / −0.1) whatever that reward;
+    ``trajectories`` if recorded (``analysis.episodes``)."""
 
     returns: np.ndarray
     successes: np.ndarray
     lengths: np.ndarray
     trajectories: dict[str, np.ndarray] | None = None
+    table_returns: np.ndarray | None = None
 
 
 def run_episodes(
@@ -62,11 +65,14 @@ def run_episodes(
             "returns": np.zeros(n),
             "successes": np.zeros(n, dtype=bool),
             "lengths": np.zeros(n, dtype=np.int64),
+            "table_returns": np.zeros(n),
         }
         for _ in range(env.max_steps):
             actions, messages = policy_fn(obs, env.positions)
             obs, rewards, terminated, truncated, info = env.step(actions, messages)
             result["returns"] += np.where(active, rewards, 0.0)
+            table = team_rewards(info["on_target"], info["on_target"], "per_step")
+            result["table_returns"] += np.where(active, table, 0.0)
             finished = active & (terminated | truncated)
             result["successes"][finished] = terminated[finished]
             result["lengths"][finished] = info["steps"][finished]
@@ -89,6 +95,12 @@ def summarize(results: EpisodeResults) -> dict[str, float | int | None]:
         else None,
         "mean_return": float(results.returns.mean()),
     }
+
+
+def validation_summary(results: EpisodeResults) -> dict[str, float | int | None]:
+    """:func:`summarize` with the mean return under the assignment's table on the same
+    episodes (``mean_table_return``): what training logs at each periodic evaluation."""
+    return summarize(results) | {"mean_table_return": float(results.table_returns.mean())}
 
 
 SELECT_BY = ("steps", "success", "return")  # the rules of select_best (--select_by)

@@ -17,11 +17,9 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
-import json
 import multiprocessing
 import shutil
 import sys
-import textwrap
 import time
 from pathlib import Path
 from typing import Any
@@ -186,8 +184,7 @@ def record_batch(cfg: TrainConfig, finals: list[dict[str, Any]], staging: Path) 
         last = {agent: f"last_weights/{name}_agent_{agent}.pt" for agent in "AB"}
         if all((models / f).is_file() for f in last.values()):  # trained with keep_best
             runs[name]["last_weights"] = safety.model_listing(last, models)
-    title = curves_title(cfg.hyperparameters())
-    plot_training_curves(logs, cfg.run_modes(), cfg.run_seeds(), title)
+    plot_training_curves(logs, cfg.run_modes(), cfg.run_seeds(), cfg.hyperparameters())
     manifest = {"format": 1, **cfg.identity(), "runs": runs, "best": best}
     safety.write_json_atomic(models / safety.MANIFEST, manifest)
     return best
@@ -208,81 +205,43 @@ def read_csv(path: Path) -> list[dict[str, float]]:
 
 
 # ------------------------------------------------------------------ the curves
-CURVE_PANELS = (
-    ("eval_success_eps", "success rate", (0.0, 1.02)),
-    ("eval_return_eps", "return ({reward})", None),
-)  # validation episodes at ε = 0.05; {reward}: the batch's CURVE_REWARD_NAMES entry
-CURVE_REWARD_NAMES = {  # reward_mode -> the short name the return axis carries
+RETURN_NAMES = {  # reward_mode -> the return the curves show when no table return was logged
     "goal": "goal reward",
     "per_step": "assignment's reward",
     "arrival": "arrival reward",
 }
-CURVE_REWARDS = {  # reward_mode -> the reward the curves' return sums
-    "goal": "goal reward (+10 when both agents stand on the target, −0.1 on every other step)",
-    "per_step": "assignment's reward (+10 both on target, +2 per step one is on it, else −0.1)",
-    "arrival": "arrival reward (+10 both on target, +2 when an agent first arrives, else −0.1)",
-}
 
 
-def curves_title(settings: dict[str, Any]) -> str:
-    """The curves' title from a batch's hyperparameters: the map, and the settings that
-    differ from the main experiment's reward and message learning."""
-    return (
-        f"Training progress on map seed {settings['map_seed']}"
-        + (f" (reward {settings['reward_mode']})" if settings["reward_mode"] != "goal" else "")
-        + (", untrained messages" if settings["comm_learning"] == "none" else "")
-    )
-
-
-def plot_training_curves(logs_dir: Path, modes: list[str], seeds: list[int], title: str) -> None:
-    """Validation success and return (ε = 0.05) against env steps, one column per mode:
-    every seed as a thin line (its last point is the weights the run ended with), the mean
-    over seeds and the interquartile band; 6.5 in wide, as the report prints it. The reward
-    summed is named from the batch's ``agent_models/hyperparameters.json``."""
+def plot_training_curves(
+    logs_dir: Path, modes: list[str], seeds: list[int], settings: dict[str, Any]
+) -> None:
+    """Validation success and return at ε = 0.05 against env steps, the modes overlaid: the
+    mean over seeds and the interquartile band, 6.5 in wide as the report prints it. The
+    return is under the assignment's table (+10 / +2 / −0.1) where the logs hold it, else
+    under the reward the batch learnt from (``settings["reward_mode"]``), named on the axis."""
     from matplotlib.figure import Figure  # here: a worker process never needs matplotlib
-    from matplotlib.lines import Line2D
-    from matplotlib.ticker import FuncFormatter
 
-    settings = json.loads((logs_dir.parent / "agent_models" / "hyperparameters.json").read_bytes())
-    fig = Figure(figsize=(6.5, 4.9), layout="constrained")
-    axes = np.asarray(fig.subplots(2, len(modes), sharex=True, sharey="row", squeeze=False))
-    for column, mode in enumerate(modes):
-        logs = [read_csv(logs_dir / f"{mode}_seed{seed}.csv") for seed in seeds]
-        length = min(len(log) for log in logs)
-        steps = np.array([row["env_steps"] for row in logs[0][:length]])
-        colour = MODE_COLOURS.get(mode)
-        for ax, (key, label, limits) in zip(axes[:, column], CURVE_PANELS, strict=True):
-            values = np.array([[row[key] for row in log[:length]] for log in logs])
-            for run in values:
-                ax.plot(steps, run, color=colour, alpha=0.35, linewidth=0.7)
-            low, high = np.percentile(values, [25, 75], axis=0)
-            ax.fill_between(steps, low, high, color=colour, alpha=0.25, linewidth=0)
-            ax.plot(steps, values.mean(axis=0), color=colour, linewidth=2.0)
-            if limits:
-                ax.set_ylim(*limits)
-            label = label.format(reward=CURVE_REWARD_NAMES[settings["reward_mode"]])
-            ax.set_ylabel(label if column == 0 else "", fontsize=9)
-            ax.grid(True, alpha=0.3)
-            ax.tick_params(labelsize=8)
-            # "100k": full numbers would run into each other
-            ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x / 1000:g}k" if x else "0"))
-        axes[0, column].set_title(f"{mode} ({len(seeds)} seeds)", fontsize=9)
-        axes[1, column].set_xlabel("environment steps", fontsize=9)
-    legend = [
-        Line2D([], [], color="0.4", lw=0.7, label="one seed"),
-        Line2D([], [], color="0.4", alpha=0.3, lw=7, label="interquartile range over seeds"),
-        Line2D([], [], color="0.4", lw=2.0, label="mean over seeds"),
-    ]
-    fig.legend(handles=legend, loc="outside lower center", ncols=3, fontsize=8, frameon=False)
-    reward = CURVE_REWARDS[settings["reward_mode"]]
-    unseen = ", less the arrival term added for learning"
-    words = f"Validation episodes at ε = 0.05; return: the {reward} summed over an episode"
-    words += (
-        " (the reward these agents learn from"
-        + (unseen if settings["target_potential"] > 0 else "")
-        + ")"
+    logs = {m: [read_csv(logs_dir / f"{m}_seed{s}.csv") for s in seeds] for m in modes}
+    table = all("eval_return_table_eps" in log[0] for runs in logs.values() for log in runs)
+    reward = "assignment's reward" if table else RETURN_NAMES[settings["reward_mode"]]
+    panels = (
+        ("eval_success_eps", "success rate"),
+        ("eval_return_table_eps" if table else "eval_return_eps", f"return ({reward})"),
     )
-    fig.suptitle(f"{title}\n{textwrap.fill(words + '.', width=100)}", fontsize=9)
+    fig = Figure(figsize=(6.5, 2.7), layout="constrained")
+    for ax, (key, label) in zip(fig.subplots(1, 2), panels, strict=True):
+        for mode, runs in logs.items():
+            length = min(len(log) for log in runs)
+            steps = np.array([row["env_steps"] for row in runs[0][:length]]) / 1000
+            values = np.array([[row[key] for row in log[:length]] for log in runs])
+            low, high = np.percentile(values, [25, 75], axis=0)
+            ax.fill_between(steps, low, high, color=MODE_COLOURS[mode], alpha=0.2, linewidth=0)
+            ax.plot(steps, values.mean(axis=0), color=MODE_COLOURS[mode], lw=1.6, label=mode)
+        ax.set_xlabel("environment steps (thousands)", fontsize=9)
+        ax.set_ylabel(label, fontsize=9)
+        ax.grid(True, alpha=0.3)
+        ax.tick_params(labelsize=8)
+    ax.legend(fontsize=8, frameon=False, title=f"mean of {len(seeds)} seeds", title_fontsize=8)
     with safety.temporary_path_for(logs_dir / "training_curves.png") as temporary:
         fig.savefig(temporary, format="png", dpi=150)
 

@@ -35,8 +35,9 @@ from rollout import (
     VALIDATION_SEED,
     PolicyFn,
     Rollout,
-    evaluate_policy,
+    run_episodes,
     select_best,
+    validation_summary,
 )
 from settings import TRAINABLE_MODES, TrainConfig
 from vector_env import VectorMultiAgentEnv
@@ -405,13 +406,15 @@ class DQNTrainer:
     def evaluation_summary(
         self, num_episodes: int, epsilon: float, seed: int
     ) -> dict[str, float | int | None]:
-        """:func:`rollout.evaluate_policy` of the current policy on fixed episodes drawn
-        from ``seed``, in environments made once per run (each evaluation reseeds them)."""
+        """:func:`rollout.summarize` of the current policy on fixed episodes drawn from
+        ``seed``, with the mean return under the assignment's table on the same episodes
+        (``mean_table_return``), in environments made once per run (reseeded each time)."""
         n_envs = min(num_episodes, 500)  # more copies than this gain no speed, only memory
         if n_envs not in self._evaluation_envs:
             self._evaluation_envs[n_envs] = self.make_vector_env(n_envs, None, validation=True)
         env = self._evaluation_envs[n_envs]
-        return evaluate_policy(env, self.policy(epsilon), num_episodes, seed=seed)
+        results = run_episodes(env, self.policy(epsilon), num_episodes, seed=seed)
+        return validation_summary(results)
 
     def evaluate_and_log(self, progress: Callable[[dict[str, Any]], None] | None) -> None:
         """Evaluate on the validation episodes, keep the weights with their results as a
@@ -442,6 +445,8 @@ class DQNTrainer:
             eval_success_eps=eps["success_rate"],
             eval_return_greedy=greedy["mean_return"],
             eval_return_eps=eps["mean_return"],
+            eval_return_table_greedy=greedy["mean_table_return"],
+            eval_return_table_eps=eps["mean_table_return"],
             eval_steps_greedy=steps(greedy),
             eval_steps_eps=steps(eps),
         )

@@ -18,7 +18,7 @@ import safety  # noqa: F401  (first: checks the packages, stdlib only)
 from safety import MANIFEST, use_reproducible_matmul
 
 from settings import DEFAULT_OUTPUT_DIR
-from train import curves_title, plot_training_curves
+from train import plot_training_curves
 
 
 def read_batch(batch_dir: Path) -> dict:
@@ -44,7 +44,7 @@ def redraw(batch_dir: Path, identity: dict) -> Path:
     ``identity``; returns its path."""
     logs_dir = batch_dir / "training_logs"
     plot_training_curves(
-        logs_dir, identity["modes"], identity["seeds"], curves_title(identity["hyperparameters"])
+        logs_dir, identity["modes"], identity["seeds"], identity["hyperparameters"]
     )
     return logs_dir / "training_curves.png"
 

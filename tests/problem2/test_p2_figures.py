@@ -17,7 +17,7 @@ from analysis.plots import message_range
 from matplotlib.figure import Figure
 from studies import map_pool_study, reward_study
 from studies.memory import study as memory_study
-from train import CURVE_REWARD_NAMES, CURVE_REWARDS
+from train import RETURN_NAMES
 from vector_env import REWARD_MODES
 
 from tests.conftest import PROBLEM2
@@ -61,7 +61,7 @@ def test_curve_redraw_refuses_a_folder_without_a_batch_or_with_a_log_missing(
 
 
 def test_every_reward_the_curves_can_sum_is_named() -> None:
-    assert set(CURVE_REWARDS) == set(CURVE_REWARD_NAMES) == set(REWARD_MODES)
+    assert set(RETURN_NAMES) == set(REWARD_MODES)
 
 
 @pytest.mark.parametrize(

@@ -68,7 +68,9 @@ def draw_training_curves(out: Path) -> None:
     (out / "agent_models").mkdir()
     shutil.copy(P2_RESULTS / "agent_models" / "hyperparameters.json", out / "agent_models")
     shutil.copytree(P2_RESULTS / "training_logs", out / "training_logs")
-    plot_training_curves(out / "training_logs", manifest["modes"], manifest["seeds"], "title")
+    plot_training_curves(
+        out / "training_logs", manifest["modes"], manifest["seeds"], manifest["hyperparameters"]
+    )
 
 
 def draw_evaluation(out: Path) -> None:

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import torch
 from multi_agent_env import MultiAgentEnv
-from rollout import EVAL_SEED, evaluate_policy
+from rollout import EVAL_SEED, run_episodes, validation_summary
 from torch.nn import functional as F
 
 from studies.memory.agents import NUM_ACTIONS, RecurrentQNetwork, export_recurrent, memory_policy
@@ -346,7 +346,7 @@ class RecurrentTrainer(PoolTrainer):
             self._evaluation_envs[n_envs] = self.make_vector_env(n_envs, None, validation=True)
         env = self._evaluation_envs[n_envs]
         policy = memory_policy((self.online, self.online), env, epsilon, EVAL_SEED)
-        return evaluate_policy(env, policy, num_episodes, seed=seed)
+        return validation_summary(run_episodes(env, policy, num_episodes, seed=seed))
 
     def policy(self, epsilon: float = 0.0, seed: int = EVAL_SEED) -> Any:
         raise NotImplementedError("a memory agent needs its environment: use memory_policy")
