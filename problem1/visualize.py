@@ -70,7 +70,7 @@ class GridWorldVisualizer:
         Obstacles are black; the goal, penalty and start cells are framed in colour (explained
         by :meth:`add_cell_legend`), the ``detours`` states by a dashed black-and-white frame.
         Arrows and values are black on light cells and white on dark ones. ``compact``: a
-        small panel of a multi-panel figure (thinner lines, smaller text). Returns the heatmap
+        small panel of a multi-panel figure (thinner lines, one decimal, smaller labels). Returns the heatmap
         image (for a colour bar), or None.
         """
         n = self.grid_size
@@ -138,10 +138,15 @@ class GridWorldVisualizer:
 
     @staticmethod
     def _contrast_colour(image, value: float) -> str:
-        """Black on a light heatmap colour, white on a dark one."""
+        """Black or white, whichever contrasts more with the heatmap colour under it (WCAG
+        contrast ratio of relative luminances): black on yellow and green, white on blue and
+        purple."""
         if image is None or np.isnan(value):
             return "black"
-        return "black" if np.mean(image.cmap(image.norm(value))[:3]) > 0.5 else "white"
+        rgb = np.asarray(image.cmap(image.norm(value))[:3])
+        linear = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+        luminance = float(linear @ np.array([0.2126, 0.7152, 0.0722]))
+        return "black" if (luminance + 0.05) / 0.05 >= 1.05 / (luminance + 0.05) else "white"
 
     def _annotate_values(
         self, ax: Axes, grid: np.ma.MaskedArray, image, compact: bool, shift: float
@@ -155,7 +160,7 @@ class GridWorldVisualizer:
                 f"{value:.1f}" if compact else f"{value:.2f}",
                 ha="center",
                 va="center",
-                fontsize=SMALL_FONT if compact else VALUE_FONT,
+                fontsize=VALUE_FONT,
                 color=self._contrast_colour(image, value),
             )
 
