@@ -117,12 +117,15 @@ def cross_references(root: str) -> dict[str, str]:
     inputs = sys_inputs(root=Path(root))
     found = {}
     for name, main in DOCUMENTS.items():
-        entries = json.loads(
-            typst.query(
-                str(Path(root) / main), "<xref>", root=root, sys_inputs=inputs,
-                ignore_system_fonts=True,
+        try:
+            entries = json.loads(
+                typst.query(
+                    str(Path(root) / main), "<xref>", root=root, sys_inputs=inputs,
+                    ignore_system_fonts=True,
+                )
             )
-        )
+        except (RuntimeError, typst.TypstError):
+            continue  # the compilation itself then reports what is wrong, naming the file
         found[f"{name}-xrefs"] = json.dumps(
             {e["value"]["key"]: e["value"]["text"] for e in entries}, sort_keys=True
         )
