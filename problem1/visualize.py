@@ -70,8 +70,8 @@ class GridWorldVisualizer:
         Obstacles are black; the goal, penalty and start cells are framed in colour (explained
         by :meth:`add_cell_legend`), the ``detours`` states by a dashed black-and-white frame.
         Arrows and values are black on light cells and white on dark ones. ``compact``: a
-        small panel of a multi-panel figure (thinner lines, one decimal, smaller labels). Returns the heatmap
-        image (for a colour bar), or None.
+        small panel of a multi-panel figure (thinner lines, one decimal, smaller labels).
+        Returns the heatmap image (for a colour bar), or None.
         """
         n = self.grid_size
         image = None

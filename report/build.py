@@ -120,7 +120,10 @@ def cross_references(root: str) -> dict[str, str]:
         try:
             entries = json.loads(
                 typst.query(
-                    str(Path(root) / main), "<xref>", root=root, sys_inputs=inputs,
+                    str(Path(root) / main),
+                    "<xref>",
+                    root=root,
+                    sys_inputs=inputs,
                     ignore_system_fonts=True,
                 )
             )

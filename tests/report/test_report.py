@@ -184,9 +184,7 @@ def test_the_eleven_items_are_headings_in_the_assignments_order() -> None:
 
 
 def test_the_companion_builds_without_warnings_and_is_reproducible(tmp_path: Path) -> None:
-    pdf, warnings = typst.compile_with_warnings(
-        str(ROOT / build.STUDIES), **build.typst_options()
-    )
+    pdf, warnings = typst.compile_with_warnings(str(ROOT / build.STUDIES), **build.typst_options())
     assert pdf.startswith(b"%PDF")
     assert [w.message for w in warnings] == []
     build.build(tmp_path / "studies.pdf", document="studies")
