@@ -39,7 +39,7 @@ def pct(x: float, digits: int = 1) -> str:
 
 def signed(x: float, digits: int = 1) -> str:
     text = fixed(100 * x, digits)
-    return ("+" if x > 0 and text.strip("0.") else "") + text
+    return ("+" if x > 0 and text != fixed(0, digits) else "") + text
 
 
 def plain_text(node: object) -> str:
