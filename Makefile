@@ -131,7 +131,8 @@ p2-beacon: $(RUNTIME_STAMP)
 p2-memory-why: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.one_step.why --train
 
-## The written report, built from the result files (seconds). The cover's name and email are
+## The written report, report.pdf (at most 12 pages), and its companion report/studies.pdf (the
+## studies in detail), both built from the result files (seconds). The cover's name and email are
 ## the README's "Full name" and "USC email" fields, read by every build; this fills them once:
 ##   make report NAME="Full Name" EMAIL="you@usc.edu"   (values given on this command line only)
 REPORT_ARGS = $(if $(filter command line,$(origin NAME)),--name "$(NAME)") \

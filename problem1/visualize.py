@@ -70,8 +70,8 @@ class GridWorldVisualizer:
         Obstacles are black; the goal, penalty and start cells are framed in colour (explained
         by :meth:`add_cell_legend`), the ``detours`` states by a dashed black-and-white frame.
         Arrows and values are black on light cells and white on dark ones. ``compact``: a
-        small panel of a multi-panel figure (thinner lines, smaller text). Returns the heatmap
-        image (for a colour bar), or None.
+        small panel of a multi-panel figure (thinner lines, one decimal, smaller labels).
+        Returns the heatmap image (for a colour bar), or None.
         """
         n = self.grid_size
         image = None
@@ -138,10 +138,15 @@ class GridWorldVisualizer:
 
     @staticmethod
     def _contrast_colour(image, value: float) -> str:
-        """Black on a light heatmap colour, white on a dark one."""
+        """Black or white, whichever contrasts more with the heatmap colour under it (WCAG
+        contrast ratio of relative luminances): black on yellow and green, white on blue and
+        purple."""
         if image is None or np.isnan(value):
             return "black"
-        return "black" if np.mean(image.cmap(image.norm(value))[:3]) > 0.5 else "white"
+        rgb = np.asarray(image.cmap(image.norm(value))[:3])
+        linear = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+        luminance = float(linear @ np.array([0.2126, 0.7152, 0.0722]))
+        return "black" if (luminance + 0.05) / 0.05 >= 1.05 / (luminance + 0.05) else "white"
 
     def _annotate_values(
         self, ax: Axes, grid: np.ma.MaskedArray, image, compact: bool, shift: float
@@ -155,7 +160,7 @@ class GridWorldVisualizer:
                 f"{value:.1f}" if compact else f"{value:.2f}",
                 ha="center",
                 va="center",
-                fontsize=SMALL_FONT if compact else VALUE_FONT,
+                fontsize=VALUE_FONT,
                 color=self._contrast_colour(image, value),
             )
 
@@ -246,10 +251,11 @@ class GridWorldVisualizer:
     ) -> Figure:
         """Sup-norm change per sweep of both algorithms (log scale) with the contraction
         bound ``||x_k - x_(k-1)|| <= gamma^(k-1) ||x_1 - x_0||`` (the legend's words)."""
-        fig = Figure(figsize=(4.3, 2.9), layout="constrained")
+        fig = Figure(figsize=(4.3, 3.4), layout="constrained")
         ax = fig.subplots()
-        # The two histories coincide sweep for sweep (max_a Q_k = V_k from zero starts), so
-        # VI is drawn as filled dots on a solid line and QI as larger open squares around them.
+        # The two histories nearly coincide (max_a Q_k = V_k from zero starts; QI's change runs
+        # over every (s, a)), so VI is drawn as filled dots on a solid line and QI as larger
+        # open squares around them.
         for name, history, style in (
             ("value iteration", vi_history, {"fmt": "o-", "ms": 3.5, "color": "#1f77b4"}),
             (
@@ -288,7 +294,7 @@ class GridWorldVisualizer:
         ax.set_title("Convergence of value iteration and Q-iteration", fontsize=10)
         ax.tick_params(labelsize=VALUE_FONT)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(loc="lower left", fontsize=SMALL_FONT + 0.5)
+        fig.legend(loc="outside lower center", ncols=2, fontsize=SMALL_FONT, frameon=False)
         return fig
 
     def create_comparison_figure(

@@ -1,6 +1,7 @@
-"""Typeset ``report.pdf`` from ``report/report.typ`` with Typst.
+"""Typeset ``report.pdf`` (``report/report.typ``) and its companion ``report/studies.pdf``
+(``report/studies.typ``) with Typst.
 
-    python report/build.py                       # writes report.pdf, name from the README
+    python report/build.py                       # writes both PDFs, name from the README
     python report/build.py --name "Ada Lovelace" --email ada@usc.edu   # fills the README too
 
 The student's name and email live in one place, the README's two course fields ("Full name",
@@ -10,14 +11,17 @@ and print one line saying how to fill them.
 
 The document reads the result files itself (``report/data.typ``); this script only does what
 Typst cannot: it compiles with the repository as Typst's root, passes the student's name and
-email as ``sys.inputs``, tells the document which optional result files exist, and fixes the
-timestamp and the fonts (Typst's embedded ones), so the same inputs give the same bytes on
-every machine.
+email as ``sys.inputs``, tells the document which optional result files exist, passes each
+document the other's cross-reference entries (``<xref>`` metadata: label -> "§B.2", "Table 4"),
+so that report.pdf cites the companion by section and back, and fixes the timestamp and the
+fonts (Typst's embedded ones), so the same inputs give the same bytes on every machine.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
+import json
 import os
 import re
 import sys
@@ -28,6 +32,9 @@ import typst
 
 ROOT = Path(__file__).resolve().parent.parent
 MAIN = Path("report") / "report.typ"  # relative to the root
+STUDIES = Path("report") / "studies.typ"  # the companion
+DOCUMENTS = {"report": MAIN, "studies": STUDIES}
+STUDIES_PDF = ROOT / "report" / "studies.pdf"
 # Result files the report uses when they exist (sys.inputs key -> path from the root).
 OPTIONAL_INPUTS = {
     "reward-study": "problem2/results/studies/reward/reward_study.json",
@@ -101,22 +108,52 @@ def sys_inputs(name: str = "", email: str = "", root: Path = ROOT) -> dict[str, 
     return inputs
 
 
+@functools.cache
+def cross_references(root: str) -> dict[str, str]:
+    """The ``sys.inputs`` entries that let each document cite the other: ``report-xrefs`` and
+    ``studies-xrefs``, each a JSON object label -> citation text ("§B.2", "Table 4"), queried
+    from the document's ``<xref>`` metadata (section and table numbers do not depend on the
+    other document, so one query of each suffices)."""
+    inputs = sys_inputs(root=Path(root))
+    found = {}
+    for name, main in DOCUMENTS.items():
+        try:
+            entries = json.loads(
+                typst.query(
+                    str(Path(root) / main),
+                    "<xref>",
+                    root=root,
+                    sys_inputs=inputs,
+                    ignore_system_fonts=True,
+                )
+            )
+        except (RuntimeError, typst.TypstError):
+            continue  # the compilation itself then reports what is wrong, naming the file
+        found[f"{name}-xrefs"] = json.dumps(
+            {e["value"]["key"]: e["value"]["text"] for e in entries}, sort_keys=True
+        )
+    return found
+
+
 def typst_options(name: str = "", email: str = "", root: Path = ROOT) -> dict:
-    """Keyword arguments shared by ``typst.compile`` and ``typst.query`` for this report
+    """Keyword arguments shared by ``typst.compile`` and ``typst.query`` for either document
     (the main file comes first, positionally). Typst's embedded fonts only, so the output does
     not depend on the fonts installed on the machine."""
     return {
         "root": str(root),
-        "sys_inputs": sys_inputs(name, email, root),
+        "sys_inputs": sys_inputs(name, email, root) | cross_references(str(root)),
         "ignore_system_fonts": True,
     }
 
 
-def build(output: Path, name: str = "", email: str = "", root: Path = ROOT) -> None:
-    """Compile the report into ``output`` (PDF) with a fixed timestamp; raises
-    ``typst.TypstError`` on any error, e.g. a missing result file, naming the file."""
+def build(
+    output: Path, name: str = "", email: str = "", root: Path = ROOT, document: str = "report"
+) -> None:
+    """Compile ``document`` ("report" or "studies") into ``output`` (PDF) with a fixed
+    timestamp; raises ``typst.TypstError`` on any error, e.g. a missing result file, naming
+    the file."""
     options = typst_options(name, email, root)
-    typst.compile(str(root / MAIN), output=str(output), timestamp=0, **options)
+    typst.compile(str(root / DOCUMENTS[document]), output=str(output), timestamp=0, **options)
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -132,6 +169,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         type=Path,
         default=ROOT / "report.pdf",
         help="PDF to write (default: report.pdf in the repository)",
+    )
+    parser.add_argument(
+        "--studies-output",
+        type=Path,
+        default=STUDIES_PDF,
+        help="the companion PDF to write (default: report/studies.pdf)",
     )
     args = parser.parse_args(argv)
     for flag in FIELDS:
@@ -154,9 +197,10 @@ def main(argv: list[str] | None = None) -> None:
     start = time.perf_counter()
     try:
         build(args.output, identity["name"], identity["email"])
+        build(args.studies_output, identity["name"], identity["email"], document="studies")
     except typst.TypstError as error:
         sys.exit(f"report: Typst could not build the report:\n{error}")
-    print(f"wrote {args.output} in {time.perf_counter() - start:.1f} s")
+    print(f"wrote {args.output} and {args.studies_output} in {time.perf_counter() - start:.1f} s")
     if not all(identity.values()):
         print(f"report: {FILL_HINT}")
 

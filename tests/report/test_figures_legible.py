@@ -31,16 +31,17 @@ EVALUATION = P2_RESULTS / "evaluation_results"
 
 
 def placed_widths() -> dict[str, float]:
-    """Image file name -> the width (points) at which the report places it."""
-    figures = json.loads(typst.query(str(ROOT / build.MAIN), "figure", **build.typst_options()))
+    """Image file name -> the width (points) at which report.pdf or its companion places it."""
     widths = {}
-    for figure in figures:
-        body = figure.get("body", {})
-        if body.get("func") != "image":
-            continue
-        # e.g. "0% + 259.2pt" or "100% + 0pt"
-        percent, points = (float(part.rstrip("%pt")) for part in body["width"].split(" + "))
-        widths[Path(body["source"]).name] = percent / 100 * TEXT_WIDTH + points
+    for main in build.DOCUMENTS.values():
+        figures = json.loads(typst.query(str(ROOT / main), "figure", **build.typst_options()))
+        for figure in figures:
+            body = figure.get("body", {})
+            if body.get("func") != "image":
+                continue
+            # e.g. "0% + 259.2pt" or "100% + 0pt"
+            percent, points = (float(part.rstrip("%pt")) for part in body["width"].split(" + "))
+            widths[Path(body["source"]).name] = percent / 100 * TEXT_WIDTH + points
     return widths
 
 

@@ -1,7 +1,7 @@
 """No result is typed into the main text by hand: every number written as a literal in the
-markup (text and equations, not code) of page 1 and the main part is one of the assignment's
-givens, a course default, a reference's year or a small integer of a formula; every other
-number is computed by the report from the result files (``report/data.typ``)."""
+markup (text and equations, not code) of report.pdf is one of the assignment's givens, a
+course default, a reference's year or a small integer of a formula; every other number is
+computed by the report from the result files (``report/data.typ``)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,14 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-MAIN_TEXT = ("answer.typ", "problem1.typ", "problem2.typ", "channels.typ")
+MAIN_TEXT = (
+    "report.typ",
+    "answer.typ",
+    "problem1.typ",
+    "problem2.typ",
+    "channels.typ",
+    "closing.typ",
+)
 GIVENS = {
     "0": "formulas and ranges (V = 0, 0 to 1)",
     "1": "formulas, 'Problem 1'",
@@ -24,6 +31,8 @@ GIVENS = {
     "0.1": "the -0.1 step reward",
     "64": "the course's default hidden layer",
     "0.995": "the course skeleton's epsilon decay",
+    "99": "the level of the Monte-Carlo interval (summary.json's ci99)",
+    "1979": "Holm 1979",
     "1999": "Ng et al. 1999",
     "2011": "Devlin and Kudenko 2011",
     "2016": "Bellemare et al. 2016, Foerster et al. 2016",

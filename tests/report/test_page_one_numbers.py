@@ -1,0 +1,144 @@
+"""Every class of number on page 1 (the answer and Table 1) is read from its result file: each
+test computes the numbers from the file with the report's own formatting and finds them in
+the typeset page, so a changed result changes page 1 or fails here."""
+
+from __future__ import annotations
+
+import functools
+import importlib.util
+import json
+from decimal import ROUND_HALF_UP, Decimal
+from pathlib import Path
+
+import typst
+
+ROOT = Path(__file__).resolve().parents[2]
+_spec = importlib.util.spec_from_file_location("report_build_p1", ROOT / "report" / "build.py")
+build = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(build)
+
+RESULTS = ROOT / "problem2" / "results"
+STUDIES = RESULTS / "studies"
+MODES = ("independent", "comm", "full")
+FAIL_LEVEL = 0.5  # answer.typ: independent agents without memory below this success fail
+
+
+def read(path: Path) -> dict:
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+def fixed(x: float, digits: int) -> str:
+    """lib.typ's ``fixed``: half away from zero, a plain hyphen for the minus sign."""
+    value = Decimal(repr(x)).quantize(Decimal(1).scaleb(-digits), rounding=ROUND_HALF_UP)
+    return f"{value + 0:.{digits}f}".replace("-0.0", "0.0") if value != 0 else f"{0:.{digits}f}"
+
+
+def pct(x: float, digits: int = 1) -> str:
+    return fixed(100 * x, digits) + " %"
+
+
+def signed(x: float, digits: int = 1) -> str:
+    text = fixed(100 * x, digits)
+    return ("+" if x > 0 and text != fixed(0, digits) else "") + text
+
+
+def plain_text(node: object) -> str:
+    if isinstance(node, dict):
+        own = " " if node.get("func") == "space" else node.get("text", "")
+        if not isinstance(own, str):
+            own = plain_text(own)
+        return own + "".join(plain_text(v) for k, v in node.items() if k != "text")
+    if isinstance(node, list):
+        return "".join(plain_text(v) for v in node)
+    return ""
+
+
+@functools.cache
+def page_one() -> str:
+    """The answer's text and Table 1's cells as typeset, with plain spaces and hyphens."""
+    text = ""
+    for label in ("<answer>", "<three-cases>"):
+        found = json.loads(typst.query(str(ROOT / build.MAIN), label, **build.typst_options()))
+        assert len(found) == 1
+        text += " " + plain_text(found[0])
+    for odd, plain in (("\u2212", "-"), ("\u00a0", " "), ("\u202f", " ")):
+        text = text.replace(odd, plain)
+    return " ".join(text.split())
+
+
+def test_the_assignments_map_rates_come_from_performance_json() -> None:
+    main = read(RESULTS / "evaluation_results" / "performance.json")["experiments"]["main"]
+    rates = [main["modes"][m]["eps"]["success_rate"]["mean"] for m in MODES]
+    assert f"in {pct(min(rates))} to {pct(max(rates))} of test episodes" in page_one()
+    for rate in rates:  # Table 1's first column
+        assert pct(rate) in page_one()
+    beacon = main["baselines"]["beacon_explorer"]["success_rate"]
+    assert pct(beacon) in page_one()
+
+
+def failing_maps() -> list[dict]:
+    panel = read(STUDIES / "memory_panel" / "memory_panel.json")["maps"].values()
+    return [
+        m
+        for m in panel
+        if m["conditions"]["eps"]["success"]["independent"]["memoryless"]["mean"] < FAIL_LEVEL
+    ]
+
+
+def test_the_panels_gains_come_from_panel_json_and_multiplicity_json() -> None:
+    panel = read(STUDIES / "panel" / "panel.json")["maps"]
+    holm = read(STUDIES / "panel" / "multiplicity.json")["panel_effects"]["maps"]
+    seeds = [str(m["map_seed"]) for m in failing_maps()]
+    for effect, digits, words in (("distance", 0, "adds up to"), ("message", 1, "up to")):
+        kept = [s for s in seeds if holm[s][effect]["rejected"] and holm[s][effect]["mean"] > 0]
+        top = max(kept, key=lambda s: panel[s]["effects"]["eps"][effect]["mean"])
+        gain = panel[top]["effects"]["eps"][effect]["mean"]
+        assert (
+            f"{effect} alone {words} {signed(gain, digits)} points (map {top})" in page_one()
+            or (f"{effect} alone {words} {signed(gain, digits)} (map {top})" in page_one())
+        )
+
+
+def test_the_stand_in_numbers_come_from_why_json() -> None:
+    panel = read(STUDIES / "panel" / "panel.json")["maps"]
+    holm = read(STUDIES / "panel" / "multiplicity.json")["panel_effects"]["maps"]
+    seeds = [str(m["map_seed"]) for m in failing_maps()]
+    top = max(
+        (s for s in seeds if holm[s]["distance"]["rejected"]),
+        key=lambda s: panel[s]["effects"]["eps"]["distance"]["mean"],
+    )
+    why = read(STUDIES / "memory_panel" / "why" / "why.json")["maps"][top]
+    stand_in = why["memoryless_channel_stand_ins_eps"]["distance"]
+    for kind in ("same_step", "shuffled_time", "constant_mean"):
+        assert signed(stand_in[kind]["mean"]) in page_one()
+
+
+def test_the_memory_numbers_come_from_memory_panel_json() -> None:
+    maps = read(STUDIES / "memory_panel" / "memory_panel.json")["maps"].values()
+    with_memory = [
+        m["conditions"]["eps"]["success"]["independent"]["memory"]["mean"] for m in failing_maps()
+    ]
+    assert f"succeed in {pct(min(with_memory), 0)} or more" in page_one()
+    effects = [
+        m["conditions"]["eps"]["channel_effects_with_memory"][e]["mean"]
+        for m in maps
+        for e in ("message", "distance")
+    ]
+    assert f"between {signed(min(effects))} and {signed(max(effects))} points" in page_one()
+
+
+def test_the_unseen_maps_numbers_come_from_their_studies() -> None:
+    pool = read(STUDIES / "map_pool" / "map_pool.json")["held_out"]
+    rates = [pool["modes"][m]["eps"]["mean"] for m in MODES]
+    assert f"{pct(min(rates), 0)} to {pct(max(rates), 0)} without memory" in page_one()
+    one_step = read(STUDIES / "one_step_unseen" / "unseen.json")["held_out"]
+    assert pct(one_step["modes"]["independent"]["eps"]["mean"], 0) in page_one()
+    listener = read(STUDIES / "beacon" / "beacon.json")["held_out"]
+    for found in (one_step, listener):
+        gap = found["differences"]["full-independent"]["eps"]
+        low, high = (fixed(100 * x, 1) for x in gap["ci95"])
+        assert f"{signed(gap['mean'])} points [{low}, {high}]" in page_one()
+    probes = listener["modes"]["full"]["interventions_delta_success"]
+    assert f"costs {fixed(-100 * probes['distance.same_step']['eps']['mean'], 1)}" in page_one()
+    assert signed(probes["message.same_step"]["eps"]["mean"]) in page_one()
+    assert pct(pool["heuristics"]["beacon_explorer"]["mean"], 0) in page_one()
