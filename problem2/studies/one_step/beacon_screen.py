@@ -165,14 +165,19 @@ def best_independent(table: dict[str, Any]) -> str:
     return max(trained, key=lambda cell: table[cell]["independent"]["eps"]["mean"])
 
 
-def train_cells(cells: dict[str, dict[str, Any]], args: argparse.Namespace, staging: Path) -> list:
-    """Train every (cell, mode, training seed) of ``cells`` into ``staging``, the longest runs
-    first; their records (:func:`train_cell`), and their wall times in ``timing.json``."""
+def train_cells(
+    cells: dict[str, dict[str, Any]],
+    args: argparse.Namespace,
+    staging: Path,
+    seeds: tuple[int, ...] = TRAINING_SEEDS,
+) -> list:
+    """Train every (cell, mode, seed in ``seeds``) of ``cells`` into ``staging``, the longest
+    runs first; their records (:func:`train_cell`), and their wall times in ``timing.json``."""
     jobs = [
         (cell, mode, seed, spec["changes"], staging, args.smoke)
         for cell, spec in cells.items()
         for mode in spec["modes"]
-        for seed in TRAINING_SEEDS
+        for seed in seeds
     ]
     jobs.sort(key=lambda job: -job[3].get("total_steps", MILLION))  # longest first
     steps = [args.smoke.get("total_steps", job[3].get("total_steps", MILLION)) for job in jobs]
