@@ -241,7 +241,8 @@ def plot_training_curves(
         ax.set_ylabel(label, fontsize=9)
         ax.grid(True, alpha=0.3)
         ax.tick_params(labelsize=8)
-    ax.legend(fontsize=8, frameon=False, title=f"mean of {len(seeds)} seeds", title_fontsize=8)
+    title = f"mean of {len(seeds)} seeds\n(band: middle half)"
+    ax.legend(fontsize=8, frameon=False, title=title, title_fontsize=8)
     with safety.temporary_path_for(logs_dir / "training_curves.png") as temporary:
         fig.savefig(temporary, format="png", dpi=150)
 
@@ -269,19 +270,21 @@ def main(
         parser.error(usage(error))
     except safety.FolderError as error:
         parser.error(f"argument --output_dir: {error}, got {cfg.output_dir!r}")
-    jobs = [(cfg, mode, seed) for mode in cfg.run_modes() for seed in cfg.run_seeds()]
-    print(f"training {len(jobs)} runs into {shown(root)} ({cfg.workers} at a time)")
+    runs = [(mode, seed) for mode in cfg.run_modes() for seed in cfg.run_seeds()]
+    workers = min(cfg.workers, len(runs))
+    print(f"training {len(runs)} runs into {shown(root)} ({workers} at a time)")
     with safety.staged_batch(root) as staging:
         models = staging / "agent_models"
         grid = generate_map(cfg.grid_shape(), cfg.map_seed)
         safety.write_json_atomic(models / "map.json", {"grid": grid.tolist()})
         safety.write_json_atomic(models / "hyperparameters.json", cfg.hyperparameters())
-        if min(cfg.workers, len(jobs)) == 1:
-            finals = [train_one(*job, staging, trainer_class) for job in jobs]
-        else:  # one run per process; results in the order of the jobs
+        if workers == 1:
+            finals = [train_one(cfg, mode, seed, staging, trainer_class) for mode, seed in runs]
+        else:  # one run per process; the results in the order of the runs
             context = multiprocessing.get_context("spawn")
-            with context.Pool(min(cfg.workers, len(jobs)), safety.start_worker) as pool:
-                finals = pool.starmap(train_one, [(*job, staging, trainer_class) for job in jobs])
+            jobs = [(cfg, mode, seed, staging, trainer_class) for mode, seed in runs]
+            with context.Pool(workers, safety.start_worker) as pool:
+                finals = pool.starmap(train_one, jobs, chunksize=1)
         best = record_batch(cfg, finals, staging)
     for final in finals:
         name = f"{final['mode']}_seed{final['seed']}"
