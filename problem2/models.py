@@ -12,27 +12,16 @@ from __future__ import annotations
 import copy
 import hashlib
 import io
-import warnings
 import zipfile
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import torch
 from grid_maps import positive_int
-from safety import temporary_path_for
+from safety import quiet_torchscript, temporary_path_for
 from torch import nn
-
-OBSERVATION_DIM = 11  # the default 3 x 3 window: 9 cells, message, distance
-MESSAGE_INDEX = 9  # the partner's last message (w² for a w x w window)
-DISTANCE_INDEX = 10  # normalised distance between the agents (w² + 1)
-MASKED_INPUTS = {  # the observation elements each ablation zeroes (3 x 3 window)
-    "independent": (MESSAGE_INDEX, DISTANCE_INDEX),  # patch only
-    "comm": (DISTANCE_INDEX,),  # patch + message
-    "distance": (MESSAGE_INDEX,),  # patch + distance (beyond the assignment's three)
-    "full": (),  # patch + message + distance
-}
+from vector_env import MASKED_INPUTS, OBSERVATION_DIM
 
 
 def observation_mask(mode: str, obs_dim: int = OBSERVATION_DIM) -> np.ndarray:
@@ -196,15 +185,6 @@ def exportable_copy(network: nn.Module) -> nn.Module:
         if isinstance(child, nn.Linear):
             setattr(exported, name, _ExportLinear(child))
     return exported
-
-
-@contextmanager
-def quiet_torchscript() -> Iterator[None]:
-    """torch 2.13 marks ``torch.jit`` deprecated, but the course requires TorchScript files
-    that load with ``torch.jit.load`` alone, so the warning is expected here."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", r"`torch\.jit\.\w+` is deprecated", DeprecationWarning)
-        yield
 
 
 def export_policy(

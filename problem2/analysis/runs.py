@@ -26,11 +26,12 @@ from pathlib import Path
 import numpy as np
 import torch
 from grid_maps import DEFAULT_MAP_SEED, check_grid, generate_map
-from models import OBSERVATION_DIM, quiet_torchscript
+from safety import quiet_torchscript
+from vector_env import MASKED_INPUTS, OBSERVATION_DIM
 
 PROBLEM2 = Path(__file__).resolve().parent.parent
 DEFAULT_ROOT = PROBLEM2 / "results"
-MODES = ("independent", "comm", "distance", "full")
+MODES = tuple(MASKED_INPUTS)  # independent, comm, distance, full
 NUM_ACTIONS = 5
 SEED_FILE = re.compile(r"^(independent|comm|distance|full)_seed(\d+)_agent_A\.pt$")
 MANIFEST = "manifest.json"
@@ -115,6 +116,19 @@ def relative_models_dir(name: str) -> str:
     """The agent_models folder of experiment ``name`` relative to the results root (as
     :func:`study_model_dirs` lays them out), for outputs that must hold no absolute path."""
     return "agent_models" if name == "main" else f"studies/{name}/agent_models"
+
+
+def experiment_info(experiment: Experiment) -> dict:
+    """What an evaluation's files say of ``experiment``: its settings, models folder (relative
+    to the results root), map, target, and whether a manifest listed its models."""
+    info = {
+        key: experiment.settings.get(key)
+        for key in ("map_seed", "reward_mode", "comm_learning", "max_steps")
+    }
+    info |= {"models_dir": relative_models_dir(experiment.name), "grid": experiment.grid.tolist()}
+    info["manifest"] = experiment.manifest is not None
+    info["target"] = [int(v) for v in np.argwhere(experiment.grid == 2)[0]]
+    return info
 
 
 def read_manifest(models_dir: Path) -> dict | None:

@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 import torch
 import train
+from analysis.arrivals import arrivals
 from analysis.episodes import EvaluationSetting, model_policy, recorded_episodes
-from analysis.failures import arrivals
 from analysis.runs import load_map, load_model_pair
 from batch.experiments import read_csv
 from rollout import VALIDATION_SEED

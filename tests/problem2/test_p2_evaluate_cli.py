@@ -21,7 +21,7 @@ from analysis.episodes import model_policy
 from analysis.evaluator import experiment_evaluator
 from analysis.generalization import models_on_maps
 from analysis.information import MEASURES
-from analysis.interventions import INTERVENTIONS
+from analysis.interventions import INTERVENTIONS, intervention_test
 from analysis.runs import best_seed, discover_experiments, load_map, sha256_of
 from evaluate import (
     MultiAgentEvaluator,
@@ -276,7 +276,7 @@ def test_interventions_cannot_matter_to_independent_agents(tiny_root: Path) -> N
     models = tiny_root / "agent_models"
     env = MultiAgentEnv(grid=load_map(models / "map.json"))
     evaluator = MultiAgentEvaluator(env, *load_trained_models(models, "independent"))
-    tests = evaluator.intervention_test(100)
+    tests = intervention_test(evaluator, 100)
     for channel in ("message", "distance"):
         for condition in ("greedy", "eps"):
             rates = tests[channel][condition]

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from analysis.failures import homing_shares
+from analysis.arrivals import homing_shares
 from analysis.map_sets import HELD_OUT_MAP_SEEDS
 from analysis.runs import load_policy
 from analysis.stats import seed_paired_differences, seed_statistics
