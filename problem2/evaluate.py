@@ -36,28 +36,27 @@ from typing import Any
 import numpy as np
 import safety  # noqa: F401  (first: checks the packages, stdlib only)
 import torch
+from analysis.episodes import SUCCESS
 from analysis.evaluator import MultiAgentEvaluator, experiment_evaluator
 from analysis.messages import FEATURE_DESCRIPTIONS, message_correlations, message_distribution
 from analysis.plots import plot_trajectories, strategy_rows
 from analysis.runs import (
-    DEFAULT_ROOT,
+    DEFAULT_CHECKPOINT,
     MODES,
     Experiment,
     best_seed,
+    checked_args,
     experiment_info,
     load_model_pair,
+    make_parser,
     model_paths,
     read_experiment,
-    resolve_checkpoint,
 )
 from multi_agent_env import MultiAgentEnv
-from rollout import EVAL_EPSILON, EVAL_SEED
+from rollout import EVAL_SEED
 from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 
 __all__ = ["MultiAgentEvaluator", "create_evaluation_report", "load_trained_models", "main"]
-DEFAULT_CHECKPOINT = DEFAULT_ROOT / "agent_models"
-EPISODES_RANGE = (1, 5000)  # of every --*episodes flag
-SUCCESS = "both agents on the target on the same step within max_steps"
 CONDITIONS = ("greedy", "eps")  # ε = 0 and ε = --epsilon
 
 
@@ -90,64 +89,6 @@ def create_evaluation_report(
         raise TypeError(f"results must be a dict, got {type(results).__name__}")
     write_json_atomic(save_path, results)
     return Path(save_path)
-
-
-def make_parser(description: str) -> argparse.ArgumentParser:
-    """The flags of this script that ``python -m analysis.pipeline`` shares."""
-    parser = argparse.ArgumentParser(
-        allow_abbrev=False,
-        description=description,
-        epilog="Relative paths are resolved against the current folder.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    parser.add_argument(
-        "--checkpoint",
-        "--checkpoint_dir",
-        "--checkpoint-dir",
-        type=Path,
-        default=DEFAULT_CHECKPOINT,
-        help="agent_models folder of the main experiment, or the run folder holding it "
-        "(relative to the current folder; the default is this package's "
-        "results/agent_models, from any folder). With a manifest.json exactly its runs are "
-        "evaluated, every file checked against it; without one, the model files found are",
-    )
-    parser.add_argument(
-        "--num_episodes",
-        "--num-episodes",
-        type=int,
-        default=1000,
-        help="test episodes per trained seed and condition",
-    )
-    parser.add_argument(
-        "--epsilon", type=float, default=EVAL_EPSILON, help="exploration rate of the ε condition"
-    )
-    parser.add_argument(
-        "--output_dir",
-        "--output-dir",
-        type=Path,
-        default=None,
-        help="output folder; None: evaluation_results beside the agent_models folder",
-    )
-    return parser
-
-
-def checked_args(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
-    """``parser``'s flags, each in its range (else a usage error naming the flag and the
-    range), ``checkpoint`` resolved to the agent_models folder."""
-    args = parser.parse_args(argv)
-    low, high = EPISODES_RANGE
-    for flag, value in vars(args).items():
-        if flag.endswith("episodes") and not low <= value <= high:
-            parser.error(f"--{flag} must be an integer in {low}..{high}, got {value}")
-    if not 0 <= args.epsilon <= 1:
-        parser.error(f"--epsilon must lie in [0, 1], got {args.epsilon}")
-    try:
-        args.checkpoint, note = resolve_checkpoint(args.checkpoint)
-    except ValueError as error:
-        parser.error(str(error))
-    if note:
-        print(note)
-    return args
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -22,6 +22,7 @@ from analysis.failures import failure_shares
 from analysis.runs import check_policy_outputs
 
 MAX_BATCH = 20_000  # copies stepped together (test episodes x blocks); more run in groups
+SUCCESS = "both agents on the target on the same step within max_steps"  # in every file
 
 
 @dataclass(frozen=True)

@@ -31,13 +31,12 @@ from typing import Any
 import numpy as np
 import safety  # noqa: F401  (first: checks the packages, stdlib only)
 import torch
-from evaluate import SUCCESS, checked_args, make_parser
 from rollout import EVAL_SEED, EpisodeResults
 from safety import make_console_safe, use_reproducible_matmul
 
 from analysis.arrivals import DECOMPOSITION, failure_decomposition
 from analysis.baselines import POLICIES
-from analysis.episodes import episode_summary
+from analysis.episodes import SUCCESS, episode_summary
 from analysis.evaluator import MultiAgentEvaluator, experiment_evaluator
 from analysis.failures import FAILURE_DEFINITIONS, FAILURE_KINDS
 from analysis.generalization import evaluate_generalization, evaluate_held_out
@@ -60,7 +59,15 @@ from analysis.messages import (
 )
 from analysis.outputs import write_outputs
 from analysis.report import format_report
-from analysis.runs import Experiment, best_seed, discover_experiments, experiment_info
+from analysis.runs import (
+    DEFAULT_CHECKPOINT,
+    Experiment,
+    best_seed,
+    checked_args,
+    experiment_info,
+    make_parser,
+    read_experiment,
+)
 from analysis.stats import BOOTSTRAP_RESAMPLES, mode_differences, seed_statistics
 
 CONDITIONS = ("greedy", "eps")
@@ -372,6 +379,25 @@ def evaluate_all(
         )
         print(f"evaluated generalisation ({time.perf_counter() - start:.0f} s)")
     return results, outcomes
+
+
+def study_model_dirs(checkpoint_dir: Path) -> list[tuple[str, Path]]:
+    """(name, agent_models folder) of the main experiment (``checkpoint_dir`` itself) and
+    of every study that may exist under ``<checkpoint_dir>/../studies``."""
+    studies = checkpoint_dir.parent / "studies"
+    candidates = [("main", checkpoint_dir), ("per_step", studies / "per_step" / "agent_models")]
+    candidates.append(("no_dial", studies / "no_dial" / "agent_models"))
+    return candidates
+
+
+def discover_experiments(checkpoint_dir: Path = DEFAULT_CHECKPOINT) -> list[Experiment]:
+    """Every experiment with model files: the main one in ``checkpoint_dir``, then the
+    studies beside it (see :func:`study_model_dirs`); those without models are skipped."""
+    experiments = []
+    for name, models_dir in study_model_dirs(Path(checkpoint_dir)):
+        if (experiment := read_experiment(name, models_dir)) is not None:
+            experiments.append(experiment)
+    return experiments
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

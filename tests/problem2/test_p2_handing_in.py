@@ -13,7 +13,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from analysis.runs import discover_experiments, resolve_checkpoint
+from analysis.pipeline import discover_experiments
+from analysis.runs import resolve_checkpoint
 from batch import experiments
 from settings import BatchConfig, SettingError, validated
 

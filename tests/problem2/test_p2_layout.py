@@ -17,11 +17,16 @@ from tests.conftest import PROBLEM2, ROOT, load_problem_module
 train = load_problem_module("problem2", "train")
 SUBFOLDERS = ("analysis", "studies", "batch")
 # The course's scripts that may reach into a subfolder: the trainer runs batches, the
-# evaluator runs the analysis.
-COURSE_ENTRY_SCRIPTS = {"train.py": {"batch"}, "evaluate.py": {"analysis", "batch"}}
+# evaluator uses the analysis' evaluator, loaders and figures.
+COURSE_ENTRY_SCRIPTS = {"train.py": {"batch"}, "evaluate.py": {"analysis"}}
 # Modules and code lines (non-blank, non-comment; docstrings count) of the learner's import
 # closure: what a student reads for the DQN in one sitting.
 LEARNER_BUDGET = (8, 1400)
+# The same of ``python evaluate.py``: what a student reads to follow the course's evaluation.
+EVALUATE_BUDGET = (12, 2400)
+# What only the report's analyses (``python -m analysis.pipeline``) need.
+REPORT_ONLY = ("pipeline", "outputs", "report", "interventions", "information", "stats")
+REPORT_ONLY += ("generalization", "held_out", "estimate_plots", "baselines", "arrivals")
 STUDY_EXTENSIONS = ("map_pool", "share_weights", "prioritized", "dueling", "coverage_bonus")
 STUDY_EXTENSIONS += ("on_target_bonus", "memory")
 
@@ -80,6 +85,19 @@ def test_train_py_needs_only_the_core_and_the_batch_package() -> None:
     assert "trainer" in closure and "replay" in closure
     assert not [name for name in closure if name.split(".")[0] in ("analysis", "studies")]
     assert len(closure) <= 13, sorted(closure)  # 12 and batch.venv_check (stdlib only, first)
+
+
+def test_evaluate_py_reads_alone() -> None:
+    """``python evaluate.py``'s closure: within EVALUATE_BUDGET, without batch machinery,
+    training settings, studies or the report's analyses."""
+    closure = import_closure("evaluate")
+    modules, lines = EVALUATE_BUDGET
+    assert len(closure) <= modules, sorted(closure)
+    assert sum(code_lines(path) for path in closure.values()) <= lines
+    assert "analysis.evaluator" in closure and "multi_agent_env" in closure
+    for name in closure:
+        assert name.split(".")[0] not in ("batch", "studies", "settings", "train_config"), name
+        assert name.removeprefix("analysis.") not in REPORT_ONLY, name
 
 
 def code_lines(path: Path) -> int:
