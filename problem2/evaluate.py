@@ -93,8 +93,12 @@ def create_evaluation_report(
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = make_parser(__doc__.split("\n\n")[0])
-    parser.add_argument("--render", action="store_true", help="first print one episode")
-    parser.add_argument("--mode", default="full", choices=MODES, help="mode --render shows")
+    parser.add_argument(
+        "--render", action="store_true", help="first print one episode step by step"
+    )
+    parser.add_argument(
+        "--mode", default="full", choices=MODES, help="mode whose best pair --render shows"
+    )
     return checked_args(parser, argv)
 
 

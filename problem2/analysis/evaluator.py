@@ -3,7 +3,8 @@ policy) on one map, built on the vectorised environment. Re-exported by ``evalua
 
 The analyses beyond the course's (``python -m analysis.pipeline``) run through the same
 :meth:`MultiAgentEvaluator.run_blocks`: the interventions of ``analysis/interventions.py``
-change the policy of some blocks through its ``wrap`` argument."""
+and the other policies of ``analysis/generalization.py`` change the policy of some blocks
+through its ``wrap`` argument."""
 
 from __future__ import annotations
 

@@ -401,7 +401,7 @@ def discover_experiments(checkpoint_dir: Path = DEFAULT_CHECKPOINT) -> list[Expe
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = make_parser(__doc__.split("\n\n")[0])
+    parser = make_parser(__doc__.split("\n\n")[0], prog="python -m analysis.pipeline")
     parser.add_argument(
         "--generalization_episodes",
         "--generalization-episodes",
@@ -433,7 +433,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 )
         results, outcomes = evaluate_all(experiments, args)
     except (FileNotFoundError, ValueError) as error:
-        raise SystemExit(f"analysis.pipeline: error: {error}") from error
+        raise SystemExit(f"python -m analysis.pipeline: error: {error}") from error
     output_dir = args.output_dir or args.checkpoint.parent / "evaluation_results"
     write_outputs(results, outcomes, output_dir)
     print(format_report(results, brief=True))

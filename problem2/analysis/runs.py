@@ -369,9 +369,10 @@ def best_seed(experiment: Experiment, mode: str) -> int | None:
     )
 
 
-def make_parser(description: str) -> argparse.ArgumentParser:
+def make_parser(description: str, prog: str | None = None) -> argparse.ArgumentParser:
     """The flags ``python evaluate.py`` and ``python -m analysis.pipeline`` share."""
     parser = argparse.ArgumentParser(
+        prog=prog,
         allow_abbrev=False,
         description=description,
         epilog="Relative paths are resolved against the current folder.",
@@ -396,7 +397,10 @@ def make_parser(description: str) -> argparse.ArgumentParser:
         help="test episodes per trained seed and condition",
     )
     parser.add_argument(
-        "--epsilon", type=float, default=EVAL_EPSILON, help="exploration rate of the ε condition"
+        "--epsilon",
+        type=float,
+        default=EVAL_EPSILON,
+        help="exploration rate of the ε-greedy condition",
     )
     parser.add_argument(
         "--output_dir",
