@@ -33,10 +33,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import safety  # noqa: F401  (first: checks the packages, stdlib only)
 import torch
-from analysis.episodes import SUCCESS
+from analysis.episodes import SUCCESS, mean_over_seeds
 from analysis.evaluator import MultiAgentEvaluator, experiment_evaluator
 from analysis.messages import FEATURE_DESCRIPTIONS, message_correlations, message_distribution
 from analysis.plots import plot_trajectories, strategy_rows
@@ -100,17 +99,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--mode", default="full", choices=MODES, help="mode whose best pair --render shows"
     )
     return checked_args(parser, argv)
-
-
-def mean_over_seeds(values: list[float | None]) -> dict[str, Any]:
-    """Mean over the seeds that have a value (a seed without success has no steps to
-    success), how many, and every seed's value."""
-    present = [float(v) for v in values if v is not None]
-    return {
-        "mean": float(np.mean(present)) if present else None,
-        "n": len(present),
-        "per_seed": [None if v is None else float(v) for v in values],
-    }
 
 
 def evaluate_mode(experiment: Experiment, mode: str, num_episodes: int, epsilon: float):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 from collections import deque
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -232,3 +233,14 @@ def episode_summary(
     if results.trajectories is not None:
         summary["failures"] = failure_shares(results, target)
     return summary
+
+
+def mean_over_seeds(values: list[float | None]) -> dict[str, Any]:
+    """Mean over the seeds that have a value (a seed without success has no steps to
+    success), how many, and every seed's value."""
+    present = [float(v) for v in values if v is not None]
+    return {
+        "mean": float(np.mean(present)) if present else None,
+        "n": len(present),
+        "per_seed": [None if v is None else float(v) for v in values],
+    }
