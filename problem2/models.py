@@ -12,14 +12,16 @@ from __future__ import annotations
 import copy
 import hashlib
 import io
+import warnings
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import torch
 from grid_maps import positive_int
-from safety import quiet_torchscript, temporary_path_for
+from safety import temporary_path_for
 from torch import nn
 from vector_env import MASKED_INPUTS, OBSERVATION_DIM
 
@@ -185,6 +187,15 @@ def exportable_copy(network: nn.Module) -> nn.Module:
         if isinstance(child, nn.Linear):
             setattr(exported, name, _ExportLinear(child))
     return exported
+
+
+@contextmanager
+def quiet_torchscript() -> Iterator[None]:
+    """torch 2.13 marks ``torch.jit`` deprecated, but the course requires TorchScript files
+    that load with ``torch.jit.load`` alone, so the warning is expected here."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", r"`torch\.jit\.\w+` is deprecated", DeprecationWarning)
+        yield
 
 
 def export_policy(

@@ -1,10 +1,9 @@
 """What keeps a run of ``train.py`` or ``evaluate.py`` safe: the packages it needs, a console
-that cannot show every character, reproducible matrix products, TorchScript files loaded and
-written without torch's deprecation warning, and atomic file writes (under a temporary name
-in the target folder, then ``os.replace`` onto the real name, so an interrupted run never
-leaves a half-written file). Standard library only: a command imports it first, so outside
-the project's virtual environment it stops with one line saying what to do instead of
-Python's bare ``No module named 'torch'``."""
+that cannot show every character, reproducible matrix products, and atomic file writes (under
+a temporary name in the target folder, then ``os.replace`` onto the real name, so an
+interrupted run never leaves a half-written file). Standard library only: a command imports
+it first, so outside the project's virtual environment it stops with one line saying what to
+do instead of Python's bare ``No module named 'torch'``."""
 
 from __future__ import annotations
 
@@ -12,7 +11,6 @@ import importlib.util
 import json
 import os
 import sys
-import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -52,15 +50,6 @@ def use_reproducible_matmul() -> None:
     process's first matrix product, and worker processes inherit it. A value set by the user
     is kept."""
     os.environ.setdefault("MKL_CBWR", "AVX2")
-
-
-@contextmanager
-def quiet_torchscript() -> Iterator[None]:
-    """torch 2.13 marks ``torch.jit`` deprecated, but the course requires TorchScript files
-    that load with ``torch.jit.load`` alone, so the warning is expected here."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", r"`torch\.jit\.\w+` is deprecated", DeprecationWarning)
-        yield
 
 
 @contextmanager

@@ -22,6 +22,7 @@ import argparse
 import hashlib
 import json
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,7 +30,6 @@ import numpy as np
 import torch
 from grid_maps import DEFAULT_MAP_SEED, check_grid, generate_map
 from rollout import EVAL_EPSILON
-from safety import quiet_torchscript
 from vector_env import MASKED_INPUTS, OBSERVATION_DIM
 
 PROBLEM2 = Path(__file__).resolve().parent.parent
@@ -74,7 +74,10 @@ def load_policy(path: str | Path) -> torch.jit.ScriptModule:
     if not path.is_file():
         raise FileNotFoundError(f"no policy file at {path}")
     try:
-        with quiet_torchscript():
+        with warnings.catch_warnings():  # torch 2.13 deprecates it; the course requires it
+            warnings.filterwarnings(
+                "ignore", r"`torch\.jit\.load` is deprecated", DeprecationWarning
+            )
             policy = torch.jit.load(str(path), map_location="cpu")
     except Exception as error:  # torch raises RuntimeError or zipfile/pickle errors
         raise ValueError(f"{path} is not a valid TorchScript policy: {error}") from error
