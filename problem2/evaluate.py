@@ -23,7 +23,7 @@ The report's analyses (intervals over seeds, differences between modes, baseline
 interventions, information measures, other maps, the studies) are ``python -m
 analysis.pipeline`` (``make p2-evaluate``): it writes these three files in full, every number
 of this script's at the same place, and the rest of ``evaluation_results/``. A JSON file here
-that already holds every number this script measured (the committed results do) is kept.
+that already holds every number this script measured (as after ``make p2-evaluate``) is kept.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ from analysis.runs import (
     read_experiment,
 )
 from multi_agent_env import MultiAgentEnv
-from rollout import EVAL_SEED
+from rollout import EVAL_SEED, EpisodeResults
 from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 
 __all__ = ["MultiAgentEvaluator", "create_evaluation_report", "load_trained_models", "main"]
@@ -101,7 +101,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return checked_args(parser, argv)
 
 
-def evaluate_mode(experiment: Experiment, mode: str, num_episodes: int, epsilon: float):
+def evaluate_mode(
+    experiment: Experiment, mode: str, num_episodes: int, epsilon: float
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, EpisodeResults]]:
     """(performance entry, communication entry, best seed's episodes) of one mode: every
     seed's pair on the same test episodes, greedy and ε-greedy."""
     per_seed, messages, runs = {}, {}, {}
