@@ -48,9 +48,11 @@ p2-baselines: $(RUNTIME_STAMP)
 p2-main: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) train.py --overwrite
 
-# Every mode and seed of the main experiment and of the studies found beside it.
+# Every mode and seed of the main experiment and of the studies found beside it: the report's
+# analyses (analysis/pipeline.py), which write every file of evaluation_results/ (the three
+# that `python evaluate.py` writes among them, in full).
 p2-evaluate: $(RUNTIME_STAMP)
-	cd problem2 && $(PY) evaluate.py
+	cd problem2 && $(PY) -m analysis.pipeline
 
 # Holm's correction over the panel's effects and over the interventions (seconds; reads the
 # panel's and the evaluation's JSON, writes studies/panel/multiplicity.json).

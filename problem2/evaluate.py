@@ -1,57 +1,63 @@
-"""Evaluate Problem 2's trained agents: the reported success rates, what each input channel
-carries and what the agents use of it, how the agents fail, other maps, and pictures.
+"""Evaluate Problem 2's trained agents as the assignment asks: how often each mode succeeds,
+what its messages say, and pictures of its episodes.
 
-    python evaluate.py                               # every mode and seed, all studies
-    python evaluate.py --checkpoint results/agent_models --num_episodes 1000 --epsilon 0.05
+    python evaluate.py                               # the main experiment, every mode and seed
     python evaluate.py --checkpoint my_run           # a train.py --output_dir folder
-    python evaluate.py --render                      # also print one episode step by step
+    python evaluate.py --num_episodes 200 --render   # fewer episodes; print one step by step
 
-The success rates reported anywhere come from here: fixed test episodes (start cells from
-``rollout.EVAL_SEED``), greedy (ε = 0) and ε-greedy with exploration draws fixed per episode
-and step. (Training picks checkpoints on other, validation episodes: that is "selection",
-``training_logs/<run>_selection.json``, and is never reported as a result.) Models load
-with ``torch.jit.load`` only; where the folder has a batch ``manifest.json``, exactly its
-runs are evaluated and every file's sha256 is checked (else the files found are evaluated,
-with a note). A bad model (missing, damaged, unlisted, NaN Q-values, a message outside
-[0, 1]) stops the run before any output is written, naming the file (exit status 1).
+It writes into ``evaluation_results/`` beside the agent_models folder: ``performance.json``
+(per mode and trained seed: success rate, steps to success, return and the kinds of failed
+episodes, greedy and ε-greedy, and the mean over seeds: the comparison of the modes),
+``communication_analysis.json`` (per mode and seed: the messages' distribution and their
+correlation with what the sender sees and where it stands) and ``trajectories.png`` (each
+mode's best pair in a successful and a failed episode, and its messages per cell).
 
-The course interface lives here: :func:`load_trained_models`, :class:`MultiAgentEvaluator`
-(``analysis/evaluator.py``) and :func:`create_evaluation_report` (``analysis/report.py``).
-The run of ``python evaluate.py``: ``analysis/pipeline.py`` evaluates the training maps and
-``analysis/generalization.py`` the other maps (episodes through ``rollout.run_episodes``;
-measures from the recorded episodes: ``analysis/failures.py``, ``analysis/messages.py``,
-``analysis/information.py``, ``analysis/interventions.py``, ``analysis/stats.py``), and
-``analysis/outputs.py`` writes ``evaluation_results/`` beside the agent_models folder (see
-that module for the list of files).
+Every pair plays the same fixed test episodes (start cells and exploration draws from
+``rollout.EVAL_SEED``; training chose its checkpoints on other episodes). Models load with
+``torch.jit.load`` only, each checked on probe observations; with a batch ``manifest.json``
+exactly its runs are evaluated, every file's sha256 checked. A bad model file (missing,
+damaged, unlisted, wrong shape, NaN, a message outside [0, 1]) stops the run before anything
+is written, naming the file (exit status 1).
+
+The report's analyses (intervals over seeds, differences between modes, baselines,
+interventions, information measures, other maps, the studies) are ``python -m
+analysis.pipeline`` (``make p2-evaluate``): it writes these three files in full, every number
+of this script's at the same place, and the rest of ``evaluation_results/``. A JSON file here
+that already holds every number this script measured (as after ``make p2-evaluate``) is kept.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 from typing import Any
 
 import safety  # noqa: F401  (first: checks the packages, stdlib only)
-from safety import make_console_safe, use_reproducible_matmul
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 
 import torch
-from analysis.evaluator import MultiAgentEvaluator
-from analysis.outputs import write_outputs
-from analysis.pipeline import evaluate_all
-from analysis.report import create_evaluation_report, format_report
+from analysis.episodes import SUCCESS, mean_over_seeds
+from analysis.evaluator import MultiAgentEvaluator, experiment_evaluator
+from analysis.messages import FEATURE_DESCRIPTIONS, message_correlations, message_distribution
+from analysis.plots import plot_trajectories, strategy_rows
 from analysis.runs import (
-    DEFAULT_ROOT,
+    DEFAULT_CHECKPOINT,
     MODES,
-    discover_experiments,
+    Experiment,
+    best_seed,
+    checked_args,
+    experiment_info,
     load_model_pair,
+    make_parser,
     model_paths,
-    resolve_checkpoint,
+    read_experiment,
 )
 from multi_agent_env import MultiAgentEnv
-from rollout import EVAL_EPSILON
+from rollout import EVAL_SEED, EpisodeResults
 
 __all__ = ["MultiAgentEvaluator", "create_evaluation_report", "load_trained_models", "main"]
-DEFAULT_CHECKPOINT = DEFAULT_ROOT / "agent_models"
+CONDITIONS = ("greedy", "eps")  # ε = 0 and ε = --epsilon
 
 
 def load_trained_models(
@@ -73,106 +79,161 @@ def load_trained_models(
     return load_model_pair(path, mode, seed)
 
 
+def create_evaluation_report(
+    results: dict[str, Any], save_path: str | Path = "results/evaluation_report.json"
+) -> Path:
+    """Write ``results`` (any JSON-serialisable dict, e.g. what ``evaluate_performance`` or
+    ``python evaluate.py`` returns) to ``save_path`` as indented UTF-8 JSON, atomically;
+    the parent folder is created. NaN or Infinity is refused (ValueError): not JSON."""
+    if not isinstance(results, dict):
+        raise TypeError(f"results must be a dict, got {type(results).__name__}")
+    write_json_atomic(save_path, results)
+    return Path(save_path)
+
+
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        allow_abbrev=False,
-        description=__doc__.split("\n\n")[0],
-        epilog="Relative paths are resolved against the current folder.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    parser = make_parser(__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--render", action="store_true", help="first print one episode step by step"
     )
-    add = parser.add_argument
-    add(
-        "--checkpoint",
-        "--checkpoint_dir",
-        "--checkpoint-dir",
-        type=Path,
-        default=DEFAULT_CHECKPOINT,
-        help="agent_models folder of the main experiment, or the run folder holding it "
-        "(relative to the current folder; the default is this package's "
-        "results/agent_models, from any folder). Studies are found beside it under "
-        "../studies. With a manifest.json exactly its runs are evaluated, every file "
-        "checked against it; without one, the model files found are",
+    parser.add_argument(
+        "--mode", default="full", choices=MODES, help="mode whose best pair --render shows"
     )
-    add(
-        "--num_episodes",
-        "--num-episodes",
-        type=int,
-        default=1000,
-        help="test episodes per trained seed and condition",
-    )
-    add(
-        "--epsilon",
-        type=float,
-        default=EVAL_EPSILON,
-        help="exploration rate of the ε-greedy condition",
-    )
-    add("--render", action="store_true", help="first print one episode step by step")
-    add("--mode", default="full", choices=MODES, help="mode whose best pair --render shows")
-    add(
-        "--output_dir",
-        "--output-dir",
-        type=Path,
-        default=None,
-        help="output folder; None: evaluation_results beside the agent_models folder",
-    )
-    add(
-        "--generalization_episodes",
-        "--generalization-episodes",
-        type=int,
-        default=500,
-        help="test episodes per model and map, generalisation test",
-    )
-    args = parser.parse_args(argv)
-    for flag in ("num_episodes", "generalization_episodes"):
-        if not 1 <= getattr(args, flag) <= 5000:
-            parser.error(f"--{flag} must be an integer in 1..5000, got {getattr(args, flag)}")
-    if not 0 <= args.epsilon <= 1:
-        parser.error(f"--epsilon must lie in [0, 1], got {args.epsilon}")
+    return checked_args(parser, argv)
+
+
+def evaluate_mode(
+    experiment: Experiment, mode: str, num_episodes: int, epsilon: float
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, EpisodeResults]]:
+    """(performance entry, communication entry, best seed's episodes) of one mode: every
+    seed's pair on the same test episodes, greedy and ε-greedy."""
+    per_seed, messages, runs = {}, {}, {}
+    for seed in experiment.seeds[mode]:
+        evaluator = experiment_evaluator(experiment, epsilon, mode, seed)
+        runs[seed] = evaluator.run_conditions(num_episodes)
+        per_seed[str(seed)] = evaluator.summaries(runs[seed])
+        messages[str(seed)] = {
+            "messages": message_distribution(runs[seed]["greedy"]),
+            "correlations": message_correlations(runs[seed]["greedy"], experiment.grid),
+        }
+    chosen = best_seed(experiment, mode)
+    if chosen is None:  # no best-pair files: the best seed of this evaluation
+        chosen = max(runs, key=lambda s: per_seed[str(s)]["eps"]["success_rate"])
+    label = experiment.label(mode)
+    performance = {"label": label, "seeds": experiment.seeds[mode], "best_seed": chosen}
+    for condition in CONDITIONS:
+        summaries = [p[condition] for p in per_seed.values()]
+        performance[condition] = {
+            "epsilon": summaries[0]["epsilon"],
+            "episodes_per_seed": summaries[0]["episodes"],
+        } | {
+            key: mean_over_seeds([s[key] for s in summaries])
+            for key in ("success_rate", "mean_steps_to_success", "mean_return")
+        }
+    performance["per_seed"] = per_seed
+    return performance, {"label": label, "per_seed": messages}, runs[chosen]
+
+
+def evaluate_experiment(
+    experiment: Experiment, num_episodes: int, epsilon: float
+) -> tuple[dict[str, Any], dict]:
+    """The contents of performance.json and communication_analysis.json, and each mode's
+    best pair's episodes (for trajectories.png)."""
+    protocol = {
+        "evaluation_seed": EVAL_SEED,
+        "episodes_per_seed": num_episodes,
+        "conditions": {"greedy": 0.0, "eps": epsilon},
+        "success": SUCCESS,
+    }
+    performance = experiment_info(experiment) | {"modes": {}}
+    communication = {"map_seed": performance["map_seed"], "modes": {}}
+    best_runs = {}
+    for mode in experiment.seeds:
+        performance["modes"][mode], communication["modes"][mode], best_runs[mode] = evaluate_mode(
+            experiment, mode, num_episodes, epsilon
+        )
+        print(f"evaluated {mode}")
+    results = {
+        "performance": {"protocol": protocol, "experiments": {experiment.name: performance}},
+        "communication": {
+            "protocol": protocol | {"features": FEATURE_DESCRIPTIONS},
+            "experiments": {experiment.name: communication},
+        },
+    }
+    return results, best_runs
+
+
+def holds(full: Any, part: Any) -> bool:
+    """Whether ``full`` holds ``part``: every key of ``part`` with the same value, the
+    values of its dicts compared the same way."""
+    if isinstance(part, dict):
+        return isinstance(full, dict) and all(
+            k in full and holds(full[k], v) for k, v in part.items()
+        )
+    return full == part
+
+
+def write_unless_held(path: Path, data: dict[str, Any]) -> None:
+    """Write ``data`` to ``path`` unless the file there holds it (:func:`holds`): the fuller
+    evaluation of ``python -m analysis.pipeline`` of the same models is kept."""
     try:
-        args.checkpoint, note = resolve_checkpoint(args.checkpoint)
-    except ValueError as error:
-        parser.error(str(error))
-    if note:
-        print(note)
-    return args
+        kept = holds(json.loads(path.read_text(encoding="utf-8")), data)
+    except (OSError, ValueError):
+        kept = False
+    if kept:
+        print(f"{path.name}: the file there holds every number measured here; kept it")
+    else:
+        write_json_atomic(path, data)
+
+
+def print_comparison(performance: dict[str, Any]) -> None:
+    """The success rate of every mode, greedy and ε-greedy, as a table on the console."""
+    print(f"{'mode':<14}{'seeds':>6}{'success greedy':>16}{'success ε':>11}{'steps ε':>9}")
+    for mode, entry in performance["modes"].items():
+        greedy, explored = entry["greedy"], entry["eps"]
+        steps = explored["mean_steps_to_success"]["mean"]
+        print(
+            f"{mode:<14}{len(entry['seeds']):>6}{greedy['success_rate']['mean']:>16.3f}"
+            f"{explored['success_rate']['mean']:>11.3f}"
+            + (f"{steps:>9.1f}" if steps is not None else f"{'-':>9}")
+        )
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """Evaluate every experiment found from the checkpoint folder and write every output.
-    A missing, damaged or unlisted model file ends the run (exit status 1) naming it,
-    before anything is written: the manifest's checksums are checked when the experiments
-    are found, and each pair is loaded and checked where it is evaluated."""
+    """Evaluate the main experiment's models and write the three files. A missing, damaged
+    or unlisted model file ends the run (exit status 1) naming it, before anything is
+    written: the manifest's checksums are checked when the experiment is read, and each
+    pair is loaded and checked before it plays."""
     use_reproducible_matmul()  # before the first matrix product
     make_console_safe()
     args = parse_args(argv)
     torch.set_num_threads(1)  # batches of ~1000 rows: one thread is fast and leaves cores free
     try:
-        experiments = discover_experiments(args.checkpoint)
-        if not experiments:
+        experiment = read_experiment("main", args.checkpoint)
+        if experiment is None:
             raise FileNotFoundError(f"no trained models in {args.checkpoint}; run train.py first")
-        for experiment in experiments:
-            if experiment.manifest is None:
-                print(
-                    f"note: no manifest.json in {experiment.models_dir}: evaluating the "
-                    "model files found there"
-                )
+        if experiment.manifest is None:
+            print(f"note: no manifest.json in {args.checkpoint}: evaluating the model files found")
         if args.render:
-            main_experiment = experiments[0]
             env = MultiAgentEnv(
-                grid=main_experiment.grid,
-                max_steps=int(main_experiment.settings["max_steps"]),
-                reward_mode=main_experiment.settings["reward_mode"],
+                grid=experiment.grid,
+                max_steps=int(experiment.settings["max_steps"]),
+                reward_mode=experiment.settings["reward_mode"],
             )
-            models = load_trained_models(main_experiment.models_dir, args.mode)
-            names = tuple(str(p) for p in model_paths(main_experiment.models_dir, args.mode))
-            print(f"one greedy episode of the best {args.mode} pair ({names[0]}, {names[1]}):")
-            MultiAgentEvaluator(env, *models, names=names).run_episode(render=True)
-        results, outcomes = evaluate_all(experiments, args)
+            paths = model_paths(experiment.models_dir, args.mode)
+            print(f"one greedy episode of the best {args.mode} pair ({paths[0]}, {paths[1]}):")
+            models = load_trained_models(experiment.models_dir, args.mode)
+            MultiAgentEvaluator(env, *models, names=tuple(map(str, paths))).run_episode(True)
+        results, best_runs = evaluate_experiment(experiment, args.num_episodes, args.epsilon)
     except (FileNotFoundError, ValueError) as error:
         raise SystemExit(f"evaluate.py: error: {error}") from error
     output_dir = args.output_dir or args.checkpoint.parent / "evaluation_results"
-    write_outputs(results, outcomes, output_dir)
-    print(format_report(results, brief=True))
+    performance = results["performance"]["experiments"]["main"]
+    write_unless_held(output_dir / "performance.json", results["performance"])
+    write_unless_held(output_dir / "communication_analysis.json", results["communication"])
+    rows, messages = strategy_rows(best_runs, performance)
+    plot_trajectories(rows, experiment.grid, output_dir / "trajectories.png", messages)
+    print_comparison(performance)
     print(f"wrote {output_dir}")
     return results
 

@@ -23,16 +23,7 @@ import numpy as np
 import torch
 from grid_maps import positive_int
 from torch import nn
-
-OBSERVATION_DIM = 11  # the default 3 x 3 window: 9 cells, message, distance
-MESSAGE_INDEX = 9  # the partner's last message (w² for a w x w window)
-DISTANCE_INDEX = 10  # normalised distance between the agents (w² + 1)
-MASKED_INPUTS = {  # the observation elements each ablation zeroes (3 x 3 window)
-    "independent": (MESSAGE_INDEX, DISTANCE_INDEX),  # patch only
-    "comm": (DISTANCE_INDEX,),  # patch + message
-    "distance": (MESSAGE_INDEX,),  # patch + distance (beyond the assignment's three)
-    "full": (),  # patch + message + distance
-}
+from vector_env import MASKED_INPUTS, OBSERVATION_DIM
 
 
 def observation_mask(mode: str, obs_dim: int = OBSERVATION_DIM) -> np.ndarray:

@@ -27,6 +27,7 @@ from typing import Any
 import safety  # first: checks the packages (standard library only)
 
 import numpy as np
+import output_folder
 import torch
 from grid_maps import NUM_ACTIONS, generate_map
 from models import observation_mask
@@ -176,17 +177,17 @@ def record_batch(cfg: TrainConfig, finals: list[dict[str, Any]], staging: Path) 
         name = f"{final['mode']}_seed{final['seed']}"
         files = {agent: f"{name}_agent_{agent}.pt" for agent in "AB"}
         runs[name] = {"mode": final["mode"], "seed": final["seed"]}
-        runs[name] |= safety.model_listing(files, models)
+        runs[name] |= output_folder.model_listing(files, models)
         runs[name]["selection"] = {"select_by": cfg.select_by} | {
             condition: {key: final[condition][key] for key in SELECTION_MEASURES}
             for condition in ("greedy", "eps")
         }
         last = {agent: f"last_weights/{name}_agent_{agent}.pt" for agent in "AB"}
         if all((models / f).is_file() for f in last.values()):  # trained with keep_best
-            runs[name]["last_weights"] = safety.model_listing(last, models)
+            runs[name]["last_weights"] = output_folder.model_listing(last, models)
     plot_training_curves(logs, cfg.run_modes(), cfg.run_seeds(), cfg.hyperparameters())
     manifest = {"format": 1, **cfg.identity(), "runs": runs, "best": best}
-    safety.write_json_atomic(models / safety.MANIFEST, manifest)
+    safety.write_json_atomic(models / output_folder.MANIFEST, manifest)
     return best
 
 
@@ -265,15 +266,17 @@ def main(
         cfg = validated(cfg) if cfg else parse_config(argv, parser)
         root = Path(cfg.output_dir).resolve()
         default = TrainConfig().identity()
-        safety.check_output_dir(root, cfg.identity(), cfg.overwrite, DEFAULT_OUTPUT_DIR, default)
+        output_folder.check_output_dir(
+            root, cfg.identity(), cfg.overwrite, DEFAULT_OUTPUT_DIR, default
+        )
     except SettingError as error:
         parser.error(usage(error))
-    except safety.FolderError as error:
+    except output_folder.FolderError as error:
         parser.error(f"argument --output_dir: {error}, got {cfg.output_dir!r}")
     runs = [(mode, seed) for mode in cfg.run_modes() for seed in cfg.run_seeds()]
     workers = min(cfg.workers, len(runs))
     print(f"training {len(runs)} runs into {shown(root)} ({workers} at a time)")
-    with safety.staged_batch(root) as staging:
+    with output_folder.staged_batch(root) as staging:
         models = staging / "agent_models"
         grid = generate_map(cfg.grid_shape(), cfg.map_seed)
         safety.write_json_atomic(models / "map.json", {"grid": grid.tolist()})
@@ -283,7 +286,7 @@ def main(
         else:  # one run per process; the results in the order of the runs
             context = multiprocessing.get_context("spawn")
             jobs = [(cfg, mode, seed, staging, trainer_class) for mode, seed in runs]
-            with context.Pool(workers, safety.start_worker) as pool:
+            with context.Pool(workers, output_folder.start_worker) as pool:
                 finals = pool.starmap(train_one, jobs, chunksize=1)
         best = record_batch(cfg, finals, staging)
     for final in finals:

@@ -25,6 +25,18 @@ ARRIVAL_REWARD = 2.0
 STEP_REWARD = -0.1
 REWARD_MODES = ("per_step", "arrival", "goal")  # per_step: the envs' default, not the trainer's
 
+# One agent's observation: its w x w patch (w² elements, row-major), then the partner's last
+# message (element w²) and the distance between the agents (w² + 1); for the default w = 3:
+OBSERVATION_DIM = 11
+MESSAGE_INDEX = 9
+DISTANCE_INDEX = 10
+MASKED_INPUTS = {  # the observation elements each ablation mode zeroes (3 x 3 window)
+    "independent": (MESSAGE_INDEX, DISTANCE_INDEX),  # patch only
+    "comm": (DISTANCE_INDEX,),  # patch + message
+    "distance": (MESSAGE_INDEX,),  # patch + distance (beyond the assignment's three)
+    "full": (),  # patch + message + distance
+}
+
 
 def team_rewards(on_target: np.ndarray, first_arrival: np.ndarray, reward_mode: str) -> np.ndarray:
     """One team reward (N,) per step, from who stands on the target (``on_target`` (N, 2)

@@ -1,8 +1,9 @@
 """Reference policies for problem 2 (they run through ``rollout.run_episodes`` like the agents).
 
 * :func:`random_policy`: uniform random actions and messages.
-* :func:`oracle_policy`: full information; each agent follows a shortest path to the
-  target (breadth-first distances) and the first to arrive waits there.
+* :func:`oracle_policy` (defined in ``analysis/episodes.py``, beside the agents' policy):
+  full information; each agent follows a shortest path to the target (breadth-first
+  distances) and the first to arrive waits there.
 * :func:`explorer_policy`: memoryless, from the agent's own patch only: on the target, stay;
   target in sight, step towards it; otherwise a random unblocked move. With
   ``sweep=True`` the agent keeps its direction until blocked (one heading of state).
@@ -16,7 +17,6 @@ prints a table and writes ``results/evaluation_results/baselines.json``.
 from __future__ import annotations
 
 import argparse
-from collections import deque
 from functools import partial
 from pathlib import Path
 
@@ -28,12 +28,13 @@ from grid_maps import (
     ACTION_DELTAS,
     DEFAULT_MAP_SEED,
     FREE,
-    OBSTACLE,
     TARGET,
     generate_map,
 )
 from rollout import EVAL_SEED, PolicyFn, evaluate_policy
 from vector_env import REWARD_MODES, VectorMultiAgentEnv
+
+from analysis.episodes import oracle_policy
 
 RESULTS_DIR = Path(__file__).resolve().parent.parent / "results" / "evaluation_results"
 MAP_SEEDS = (DEFAULT_MAP_SEED, 0, 1, 2, 3, 4)
@@ -46,49 +47,6 @@ def random_policy(seed: int | None = None) -> PolicyFn:
     def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         n = len(obs)
         return rng.integers(len(ACTION_DELTAS), size=(n, 2)), rng.random((n, 2))
-
-    return act
-
-
-def target_distances(grid: np.ndarray) -> np.ndarray:
-    """Shortest-path length (H, W) int64 from every cell to the target by breadth-first
-    search over 4-neighbour moves; -1 for obstacles and cells that cannot reach it."""
-    rows, cols = grid.shape
-    distances = np.full((rows, cols), -1, dtype=np.int64)
-    start = tuple(int(i) for i in np.argwhere(grid == TARGET)[0])
-    distances[start] = 0
-    frontier = deque([start])
-    while frontier:
-        row, col = frontier.popleft()
-        for d_row, d_col in ACTION_DELTAS[:4]:
-            r, c = row + d_row, col + d_col
-            if 0 <= r < rows and 0 <= c < cols and grid[r, c] != OBSTACLE and distances[r, c] < 0:
-                distances[r, c] = distances[row, col] + 1
-                frontier.append((r, c))
-    return distances
-
-
-def shortest_path_actions(grid: np.ndarray) -> np.ndarray:
-    """Action (H, W) int64 that moves one step closer to the target along a shortest
-    path (the lowest-numbered such action); Stay (4) on the target and on obstacles."""
-    distances = target_distances(grid).astype(np.float64)
-    distances[distances < 0] = np.inf
-    padded = np.pad(distances, 1, constant_values=np.inf)
-    rows, cols = grid.shape
-    after_move = np.stack(
-        [padded[1 + dr : 1 + dr + rows, 1 + dc : 1 + dc + cols] for dr, dc in ACTION_DELTAS]
-    )
-    actions = np.argmin(after_move, axis=0)  # Stay (index 4) wins only where nothing is closer
-    actions[grid == OBSTACLE] = len(ACTION_DELTAS) - 1
-    return actions
-
-
-def oracle_policy(grid: np.ndarray) -> PolicyFn:
-    """Full-information policy: both agents walk shortest paths; on the target, Stay."""
-    table = shortest_path_actions(grid)
-
-    def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return table[positions[..., 0], positions[..., 1]], np.zeros(positions.shape[:2])
 
     return act
 

@@ -1,6 +1,6 @@
-"""Running trained policies for Problem 2's evaluation: greedy policies from two models,
-exploration with common random numbers, fixed start cells, recorded episodes,
-per-episode summaries.
+"""Running policies for Problem 2's evaluation: the greedy policy of two models and the
+shortest-path oracle, exploration with common random numbers, fixed start cells, recorded
+episodes, per-episode summaries.
 
 Every policy here has the ``rollout.PolicyFn`` signature, so random, oracle and trained
 policies all run through :func:`rollout.run_episodes`.
@@ -9,11 +9,13 @@ policies all run through :func:`rollout.run_episodes`.
 from __future__ import annotations
 
 import dataclasses
+from collections import deque
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
-from grid_maps import NUM_ACTIONS
+from grid_maps import ACTION_DELTAS, NUM_ACTIONS, OBSTACLE, TARGET
 from rollout import EVAL_SEED, EpisodeResults, PolicyFn, run_episodes, summarize
 from vector_env import VectorMultiAgentEnv
 
@@ -21,6 +23,7 @@ from analysis.failures import failure_shares
 from analysis.runs import check_policy_outputs
 
 MAX_BATCH = 20_000  # copies stepped together (test episodes x blocks); more run in groups
+SUCCESS = "both agents on the target on the same step within max_steps"  # in every file
 
 
 @dataclass(frozen=True)
@@ -111,6 +114,49 @@ def recorded_episodes(
     return dataclasses.replace(results, trajectories=joined)
 
 
+def target_distances(grid: np.ndarray) -> np.ndarray:
+    """Shortest-path length (H, W) int64 from every cell to the target by breadth-first
+    search over 4-neighbour moves; -1 for obstacles and cells that cannot reach it."""
+    rows, cols = grid.shape
+    distances = np.full((rows, cols), -1, dtype=np.int64)
+    start = tuple(int(i) for i in np.argwhere(grid == TARGET)[0])
+    distances[start] = 0
+    frontier = deque([start])
+    while frontier:
+        row, col = frontier.popleft()
+        for d_row, d_col in ACTION_DELTAS[:4]:
+            r, c = row + d_row, col + d_col
+            if 0 <= r < rows and 0 <= c < cols and grid[r, c] != OBSTACLE and distances[r, c] < 0:
+                distances[r, c] = distances[row, col] + 1
+                frontier.append((r, c))
+    return distances
+
+
+def shortest_path_actions(grid: np.ndarray) -> np.ndarray:
+    """Action (H, W) int64 that moves one step closer to the target along a shortest
+    path (the lowest-numbered such action); Stay (4) on the target and on obstacles."""
+    distances = target_distances(grid).astype(np.float64)
+    distances[distances < 0] = np.inf
+    padded = np.pad(distances, 1, constant_values=np.inf)
+    rows, cols = grid.shape
+    after_move = np.stack(
+        [padded[1 + dr : 1 + dr + rows, 1 + dc : 1 + dc + cols] for dr, dc in ACTION_DELTAS]
+    )
+    actions = np.argmin(after_move, axis=0)  # Stay (index 4) wins only where nothing is closer
+    actions[grid == OBSTACLE] = len(ACTION_DELTAS) - 1
+    return actions
+
+
+def oracle_policy(grid: np.ndarray) -> PolicyFn:
+    """Full-information policy: both agents walk shortest paths; on the target, Stay."""
+    table = shortest_path_actions(grid)
+
+    def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return table[positions[..., 0], positions[..., 1]], np.zeros(positions.shape[:2])
+
+    return act
+
+
 def model_policy(
     model_A: torch.nn.Module,
     model_B: torch.nn.Module,
@@ -187,3 +233,14 @@ def episode_summary(
     if results.trajectories is not None:
         summary["failures"] = failure_shares(results, target)
     return summary
+
+
+def mean_over_seeds(values: list[float | None]) -> dict[str, Any]:
+    """Mean over the seeds that have a value (a seed without success has no steps to
+    success), how many, and every seed's value."""
+    present = [float(v) for v in values if v is not None]
+    return {
+        "mean": float(np.mean(present)) if present else None,
+        "n": len(present),
+        "per_seed": [None if v is None else float(v) for v in values],
+    }

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
-from models import MASKED_INPUTS, MESSAGE_INDEX
+from vector_env import MASKED_INPUTS, MESSAGE_INDEX
 
 from analysis.plots import AGENT_COLOURS, MIN_FONT, WIDTHS, legible, save_figure
 
@@ -93,7 +93,7 @@ def plot_measures(modes: dict[str, dict], bins: str, path: str | Path) -> Path:
     """Each communication measure (``modes``: mode -> {"K2": {measure: {sender: seed
     statistics}}}) per mode, senders A and B: mean (dot and value) with its 95 % CI over
     seeds, every panel on one scale of bits. Where the receiver does not see the message
-    (``models.MASKED_INPUTS``), its CIC is zero by construction and said so, not drawn."""
+    (``vector_env.MASKED_INPUTS``), its CIC is zero by construction and said so, not drawn."""
     measures = list(next(iter(modes.values()))[bins])
     highs = [s["ci95"][1] for m in modes.values() for e in m[bins].values() for s in e.values()]
     limit = 1.3 * max(*highs, 0.01)  # room for the values written beside the whiskers

@@ -1,5 +1,10 @@
 """``MultiAgentEvaluator``: the course's evaluation interface for a pair of agents (or any
-policy) on one map, built on the vectorised environment. Re-exported by ``evaluate.py``."""
+policy) on one map, built on the vectorised environment. Re-exported by ``evaluate.py``.
+
+The analyses beyond the course's (``python -m analysis.pipeline``) run through the same
+:meth:`MultiAgentEvaluator.run_blocks`: the interventions of ``analysis/interventions.py``
+and the other policies of ``analysis/generalization.py`` change the policy of some blocks
+through its ``wrap`` argument."""
 
 from __future__ import annotations
 
@@ -21,22 +26,15 @@ from rollout import (
 )
 from vector_env import VectorMultiAgentEnv
 
-from analysis.baselines import oracle_policy
 from analysis.episodes import (
     MAX_BATCH,
     EvaluationSetting,
     episode_summary,
     explore_by_step,
     model_policy,
+    oracle_policy,
     recorded_episodes,
     start_positions,
-)
-from analysis.interventions import (
-    CHANNEL_INTERVENTIONS,
-    intervene,
-    intervention_table,
-    mean_received,
-    stack_tables,
 )
 from analysis.messages import mean_message_per_cell, message_correlations, message_distribution
 from analysis.plots import plot_message_heatmap, plot_trajectories, representative_traces
@@ -44,6 +42,9 @@ from analysis.runs import Experiment, check_policy, load_model_pair, model_paths
 
 GENERALIZATION_MAP_SEEDS = tuple(range(10))
 PolicyFactory = Callable[[np.ndarray], PolicyFn]  # map (H, W) -> greedy policy on that map
+# (policy of the blocks stepped together, their environment, the blocks' indices) -> the
+# policy they act with instead (see ``MultiAgentEvaluator.run_blocks``)
+BlockWrap = Callable[[PolicyFn, VectorMultiAgentEnv, range], PolicyFn]
 
 
 def split_blocks(results: EpisodeResults, blocks: int) -> list[EpisodeResults]:
@@ -114,36 +115,27 @@ class MultiAgentEvaluator:
         self,
         num_episodes: int,
         epsilons: list[float],
-        interventions: list[dict[int, np.ndarray | None]] | None = None,
+        wrap: BlockWrap | None = None,
         record: bool = False,
         setting: EvaluationSetting | None = None,
-        policies: list[PolicyFactory] | None = None,
     ) -> list[EpisodeResults]:
         """The same ``num_episodes`` test episodes (start cells from ``self.seed``) once per
-        block, all blocks stepped together: block k explores with ``epsilons[k]``, if given
-        feeds ``interventions[k]`` ({observation index: table (E, T, 2)}, see
-        ``analysis/interventions.py``) and, if given, acts with ``policies[k]`` (default: this
-        evaluator's policy; e.g. the models of other seeds, run beside it in one batch).
-        Exploration uses common random numbers: two blocks differ only by their policy,
-        exploration rate and intervention."""
+        block, all blocks stepped together, block k exploring with ``epsilons[k]``. ``wrap``,
+        if given, changes the greedy policy of each group of blocks stepped together before
+        exploration (what an agent hears, ``analysis/interventions.py``; other policies in
+        some blocks, ``analysis/generalization.py``). Exploration uses common random
+        numbers: two blocks differ only by their policy and exploration rate."""
         setting = setting or self.setting
         blocks = len(epsilons)
-        interventions = interventions or [{} for _ in range(blocks)]
-        policies = policies or [self.policy_factory] * blocks
-        if len(policies) != blocks:
-            raise ValueError(
-                f"policies must have {blocks} entries (one a block), got {len(policies)}"
-            )
         starts = start_positions(setting, num_episodes, self.seed)
         per_group = max(1, MAX_BATCH // num_episodes)
         results: list[EpisodeResults] = []
         for first in range(0, blocks, per_group):
             group = range(first, min(first + per_group, blocks))
             env = setting.make_env(num_episodes * len(group))
-            policy = block_policy([policies[k] for k in group], setting.grid, num_episodes)
-            for index in sorted({i for k in group for i in interventions[k]}):
-                tables = [interventions[k].get(index) for k in group]
-                policy = intervene(policy, env, stack_tables(tables, num_episodes, setting), index)
+            policy = self.policy_factory(setting.grid)
+            if wrap is not None:
+                policy = wrap(policy, env, group)
             rates = np.repeat([epsilons[k] for k in group], num_episodes)
             policy = explore_by_step(policy, env, rates, num_episodes, self.seed)
             both = np.tile(starts, (len(group), 1, 1))
@@ -158,11 +150,10 @@ class MultiAgentEvaluator:
         epsilon: float = 0.0,
         record: bool = True,
         setting: EvaluationSetting | None = None,
-        intervention: dict[int, np.ndarray | None] | None = None,
     ) -> EpisodeResults:
         """``num_episodes`` fixed test episodes, ε-greedy with ``epsilon``, on ``setting``
-        (default: own map), with an optional intervention ({index: table (E, T, 2)})."""
-        return self.run_blocks(num_episodes, [epsilon], [intervention or {}], record, setting)[0]
+        (default: own map)."""
+        return self.run_blocks(num_episodes, [epsilon], record=record, setting=setting)[0]
 
     def run_conditions(self, num_episodes: int) -> dict[str, EpisodeResults]:
         """Recorded episodes of the greedy and the ε-greedy condition."""
@@ -204,80 +195,29 @@ class MultiAgentEvaluator:
         return float(run.returns[0]), success, info
 
     # ------------------------------------------------------------------ analyses
-    def evaluate_performance(self, num_episodes: int = 100) -> dict[str, Any]:
-        """Success rate, mean steps to success, mean return and failure shares, greedy
-        and ε-greedy; the top-level numbers are the greedy ones."""
-        results = self.run_conditions(num_episodes)
+    def summaries(self, runs: dict[str, EpisodeResults]) -> dict[str, dict[str, Any]]:
+        """Per condition (greedy, ε) of ``runs``: success rate, mean steps to success, mean
+        return, the exploration rate and the failure shares (``analysis/failures.py``)."""
         target = self.setting.target
-        report = {
-            name: episode_summary(results[name], target, eps)
-            for name, eps in self.conditions.items()
-        }
-        return {**{k: v for k, v in report["greedy"].items() if k != "failures"}, **report}
+        return {name: episode_summary(runs[name], target, self.conditions[name]) for name in runs}
 
-    def intervention_test(
-        self,
-        num_episodes: int = 1000,
-        recorded: dict[str, EpisodeResults] | None = None,
-        channels: tuple[str, ...] = ("message", "distance"),
-        constants: dict[tuple[str, str], float] | None = None,
-        seed: int = 0,
-    ) -> dict[str, dict[str, dict[str, float]]]:
-        """Success rate under every intervention on each of ``channels`` (see
-        ``analysis/interventions.py``) beside the real input: ``{channel: {condition: {kind:
-        rate}}}``. One batch: every channel, condition and intervention stepped together on
-        the same test episodes and exploration draws as ``recorded`` (the real greedy and
-        ε-greedy runs; run here if not given). ``constants[(channel, condition)]`` is the
-        value of ``constant_mean`` (default: this pair's own mean received value)."""
-        recorded = recorded or self.run_conditions(num_episodes)
-        first = self.setting.obs_window**2
-        indices = {"message": first, "distance": first + 1}
-        constants = constants or {
-            (channel, name): mean_received([recorded[name]], indices[channel])
-            for channel in channels
-            for name in self.conditions
-        }
-        blocks = [
-            (channel, name, kind)
-            for channel in channels
-            for name in self.conditions
-            for kind in CHANNEL_INTERVENTIONS[channel][1:]
-        ]
-        tables = [
-            {
-                indices[channel]: intervention_table(
-                    kind,
-                    recorded[name],
-                    indices[channel],
-                    constants[channel, name],
-                    seed * 100 + number,
-                )
-            }
-            for number, (channel, name, kind) in enumerate(blocks)
-        ]
-        epsilons = [self.conditions[name] for _, name, _ in blocks]
-        runs = self.run_blocks(num_episodes, epsilons, tables)
-        result = {
-            channel: {
-                name: {"real": float(recorded[name].successes.mean())} for name in self.conditions
-            }
-            for channel in channels
-        }
-        for (channel, name, kind), run in zip(blocks, runs, strict=True):
-            result[channel][name][kind] = float(run.successes.mean())
-        return result
+    def evaluate_performance(self, num_episodes: int = 100) -> dict[str, Any]:
+        """:meth:`summaries` of ``num_episodes`` test episodes, greedy and ε-greedy; the
+        top-level numbers are the greedy ones."""
+        report = self.summaries(self.run_conditions(num_episodes))
+        return {**{k: v for k, v in report["greedy"].items() if k != "failures"}, **report}
 
     def analyze_communication(
         self, num_episodes: int = 20, recorded: EpisodeResults | None = None
     ) -> dict[str, Any]:
-        """Message distribution per agent, its correlations with what the sender sees (on
-        greedy episodes), and the interventions (:meth:`intervention_test`)."""
+        """Message distribution per agent and its correlations with what the sender sees and
+        where it stands, on greedy test episodes. (Whether the partner uses the message:
+        ``analysis.interventions.intervention_test``, run by ``python -m analysis.pipeline``.)"""
         recorded = recorded or self.run(num_episodes)
         return {
             "episodes": num_episodes,
             "messages": message_distribution(recorded),
             "correlations": message_correlations(recorded, self.setting.grid),
-            "interventions": self.intervention_test(num_episodes),
         }
 
     def visualize_trajectory(
@@ -356,24 +296,3 @@ def experiment_evaluator(
     models = load_model_pair(models_dir, mode, seed)
     names = tuple(str(path) for path in model_paths(models_dir, mode, seed))
     return MultiAgentEvaluator(env, *models, epsilon=epsilon, names=names, **kw)
-
-
-def block_policy(factories: list[PolicyFactory], grid: np.ndarray, block_size: int) -> PolicyFn:
-    """One policy over consecutive blocks of ``block_size`` copies, block k acting with
-    ``factories[k]``: each run of consecutive blocks with the same factory is one policy
-    ``factory(grid)`` called on its rows (a single policy if every block has the same)."""
-    runs: list[tuple[PolicyFactory, int, int]] = []  # (factory, first row, end row)
-    for k, factory in enumerate(factories):
-        if runs and runs[-1][0] is factory:
-            runs[-1] = (factory, runs[-1][1], (k + 1) * block_size)
-        else:
-            runs.append((factory, k * block_size, (k + 1) * block_size))
-    if len(runs) == 1:
-        return factories[0](grid)
-    parts = [(factory(grid), slice(first, end)) for factory, first, end in runs]
-
-    def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        outputs = [part(obs[rows], positions[rows]) for part, rows in parts]
-        return np.concatenate([a for a, _ in outputs]), np.concatenate([m for _, m in outputs])
-
-    return act

@@ -12,11 +12,17 @@ from typing import Any
 import numpy as np
 from grid_maps import generate_map
 from multi_agent_env import MultiAgentEnv
-from rollout import EVAL_SEED, summarize
+from rollout import EVAL_SEED, PolicyFn, summarize
+from vector_env import VectorMultiAgentEnv
 
 from analysis.baselines import POLICIES
 from analysis.episodes import EvaluationSetting
-from analysis.evaluator import GENERALIZATION_MAP_SEEDS, MultiAgentEvaluator, experiment_evaluator
+from analysis.evaluator import (
+    GENERALIZATION_MAP_SEEDS,
+    MultiAgentEvaluator,
+    PolicyFactory,
+    experiment_evaluator,
+)
 from analysis.held_out import baselines_on_held_out  # never used for a choice
 from analysis.map_sets import HELD_OUT_MAP_SEEDS
 from analysis.runs import Experiment
@@ -25,13 +31,48 @@ from analysis.stats import seed_statistics
 CONDITIONS = ("greedy", "eps")
 
 
+def block_policy(factories: list[PolicyFactory], grid: np.ndarray, block_size: int) -> PolicyFn:
+    """One policy over consecutive blocks of ``block_size`` copies, block k acting with
+    ``factories[k]``: each run of consecutive blocks with the same factory is one policy
+    ``factory(grid)`` called on its rows (a single policy if every block has the same)."""
+    runs: list[tuple[PolicyFactory, int, int]] = []  # (factory, first row, end row)
+    for k, factory in enumerate(factories):
+        if runs and runs[-1][0] is factory:
+            runs[-1] = (factory, runs[-1][1], (k + 1) * block_size)
+        else:
+            runs.append((factory, k * block_size, (k + 1) * block_size))
+    if len(runs) == 1:
+        return factories[0](grid)
+    parts = [(factory(grid), slice(first, end)) for factory, first, end in runs]
+
+    def act(obs: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        outputs = [part(obs[rows], positions[rows]) for part, rows in parts]
+        return np.concatenate([a for a, _ in outputs]), np.concatenate([m for _, m in outputs])
+
+    return act
+
+
+def one_policy_a_block(
+    factories: list[PolicyFactory],
+    grid: np.ndarray,
+    block_size: int,
+    policy: PolicyFn,
+    env: VectorMultiAgentEnv,
+    group: range,
+) -> PolicyFn:
+    """The ``wrap`` of ``MultiAgentEvaluator.run_blocks`` that lets block k of ``group``
+    act with ``factories[k]`` instead of ``policy``."""
+    return block_policy([factories[k] for k in group], grid, block_size)
+
+
 def models_on_maps(
     experiment: Experiment, epsilon: float, map_seeds: tuple[int, ...], num_episodes: int
 ) -> dict[str, dict[str, np.ndarray]]:
     """Success of every model pair of ``experiment``, greedy and ε-greedy, on each of
     ``map_seeds`` (maps of the experiment's size and rules): ``{mode: {condition: (seeds,
     maps)}}``. Per map, every (mode, seed, condition) runs the same ``num_episodes`` test
-    episodes in one batch (``MultiAgentEvaluator.run_blocks`` with one policy a block)."""
+    episodes in one batch (``MultiAgentEvaluator.run_blocks`` with one policy a block,
+    :func:`one_policy_a_block`)."""
     evaluators = {
         (mode, seed): experiment_evaluator(experiment, epsilon, mode, seed)
         for mode, seeds in experiment.seeds.items()
@@ -45,7 +86,8 @@ def models_on_maps(
     rates = np.zeros((len(blocks), len(map_seeds)))
     for k, map_seed in enumerate(map_seeds):
         setting = EvaluationSetting(generate_map(experiment.grid.shape, map_seed), *rules)
-        runs = host.run_blocks(num_episodes, epsilons, setting=setting, policies=policies)
+        wrap = partial(one_policy_a_block, policies, setting.grid, num_episodes)
+        runs = host.run_blocks(num_episodes, epsilons, wrap, setting=setting)
         rates[:, k] = [run.successes.mean() for run in runs]
     result: dict[str, dict[str, np.ndarray]] = {}
     for mode, seeds in experiment.seeds.items():

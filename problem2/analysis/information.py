@@ -24,7 +24,7 @@ import numpy as np
 from grid_maps import NUM_ACTIONS, TARGET
 from rollout import EpisodeResults
 
-from analysis.baselines import target_distances
+from analysis.episodes import target_distances
 
 BIN_COUNTS = (2, 10)
 DISTANCE_CAP = 10  # distances of 10 steps and more share one bin

@@ -22,6 +22,7 @@ Kinds (``INTERVENTIONS``), each with its question:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -136,6 +137,77 @@ def intervene(
         return policy_fn(changed, positions)
 
     return act
+
+
+def intervention_wrap(
+    tables: list[dict[int, np.ndarray | None]], episodes: int, setting
+) -> Callable[[PolicyFn, VectorMultiAgentEnv, range], PolicyFn]:
+    """The ``wrap`` of ``MultiAgentEvaluator.run_blocks`` that feeds block k the tables
+    ``tables[k]`` ({observation index: table (E, T, 2)}; a block without one reads the real
+    input)."""
+
+    def wrap(policy: PolicyFn, env: VectorMultiAgentEnv, group: range) -> PolicyFn:
+        for index in sorted({i for k in group for i in tables[k]}):
+            stacked = stack_tables([tables[k].get(index) for k in group], episodes, setting)
+            policy = intervene(policy, env, stacked, index)
+        return policy
+
+    return wrap
+
+
+def intervention_test(
+    evaluator,
+    num_episodes: int = 1000,
+    recorded: dict[str, EpisodeResults] | None = None,
+    channels: tuple[str, ...] = ("message", "distance"),
+    constants: dict[tuple[str, str], float] | None = None,
+    seed: int = 0,
+) -> dict[str, dict[str, dict[str, float]]]:
+    """Success rate of ``evaluator``'s policy (an ``analysis.evaluator.MultiAgentEvaluator``)
+    under every intervention on each of ``channels`` beside the real input: ``{channel:
+    {condition: {kind: rate}}}``. One batch: every channel, condition and intervention
+    stepped together on the same test episodes and exploration draws as ``recorded`` (the
+    real greedy and ε-greedy runs; run here if not given). ``constants[(channel,
+    condition)]`` is the value of ``constant_mean`` (default: this pair's own mean received
+    value)."""
+    recorded = recorded or evaluator.run_conditions(num_episodes)
+    first = evaluator.setting.obs_window**2
+    indices = {"message": first, "distance": first + 1}
+    constants = constants or {
+        (channel, name): mean_received([recorded[name]], indices[channel])
+        for channel in channels
+        for name in evaluator.conditions
+    }
+    blocks = [
+        (channel, name, kind)
+        for channel in channels
+        for name in evaluator.conditions
+        for kind in CHANNEL_INTERVENTIONS[channel][1:]
+    ]
+    tables = [
+        {
+            indices[channel]: intervention_table(
+                kind,
+                recorded[name],
+                indices[channel],
+                constants[channel, name],
+                seed * 100 + number,
+            )
+        }
+        for number, (channel, name, kind) in enumerate(blocks)
+    ]
+    epsilons = [evaluator.conditions[name] for _, name, _ in blocks]
+    wrap = intervention_wrap(tables, num_episodes, evaluator.setting)
+    runs = evaluator.run_blocks(num_episodes, epsilons, wrap)
+    result = {
+        channel: {
+            name: {"real": float(recorded[name].successes.mean())} for name in evaluator.conditions
+        }
+        for channel in channels
+    }
+    for (channel, name, kind), run in zip(blocks, runs, strict=True):
+        result[channel][name][kind] = float(run.successes.mean())
+    return result
 
 
 def channel_verdict(deltas: dict[str, dict]) -> str:

@@ -8,7 +8,7 @@ import numpy as np
 from grid_maps import TARGET
 from rollout import EpisodeResults
 
-from analysis.baselines import target_distances
+from analysis.episodes import target_distances
 
 AGENTS = ("A", "B")
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)

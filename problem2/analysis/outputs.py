@@ -24,14 +24,13 @@ from safety import temporary_path_for
 
 import numpy as np
 
+from analysis.animation import save_episode_gif
 from analysis.estimate_plots import plot_failure_decomposition, plot_interventions, plot_measures
-from analysis.messages import mean_message_per_cell
 from analysis.plots import (
     EpisodeTrace,
     plot_message_heatmap,
     plot_trajectories,
-    representative_traces,
-    save_episode_gif,
+    strategy_rows,
 )
 from analysis.report import format_report
 
@@ -341,13 +340,11 @@ def write_outputs(results: dict[str, Any], outcomes: dict, output_dir: Path) -> 
     written.append(output_dir / "comparison_table.md")
     name, outcome = next(iter(outcomes.items()))
     entry = performance["experiments"][name]
-    grid, target = np.array(entry["grid"]), tuple(entry["target"])
-    rows, heat, routes = [], [], {}
-    for mode, runs in outcome.runs.items():
-        label = f"{mode} (seed {entry['modes'][mode]['best_seed']})"
-        traces = representative_traces(runs, target)
-        rows.append((label, traces))
-        heat.append((label, mean_message_per_cell(runs["greedy"], grid.shape)))
+    grid = np.array(entry["grid"])
+    rows, messages = strategy_rows(outcome.runs, entry)
+    heat = [(label, means) for (label, _), means in zip(rows, messages, strict=True)]
+    routes = {}
+    for mode, (_, traces) in zip(outcome.runs, rows, strict=True):
         routes[mode] = {
             "seed": entry["modes"][mode]["best_seed"],
             "episodes": [trace_record(t) for t in traces if t is not None],
@@ -356,10 +353,8 @@ def write_outputs(results: dict[str, Any], outcomes: dict, output_dir: Path) -> 
         if shown is not None:
             title = f"{mode}: {'success' if shown.success else 'failure'}"
             written.append(save_episode_gif(shown, grid, output_dir / f"episode_{mode}.gif", title))
-    written.append(
-        plot_trajectories(rows, grid, output_dir / "trajectories.png", [h for _, h in heat])
-    )
-    episodes_shown = {"target": list(target), "modes": routes}
+    written.append(plot_trajectories(rows, grid, output_dir / "trajectories.png", messages))
+    episodes_shown = {"target": entry["target"], "modes": routes}
     written.append(write_json(output_dir / "trajectories.json", episodes_shown))
     written.append(plot_message_heatmap(heat, grid, output_dir / "comm_heatmap.png"))
     main_measures = {m: v["aggregate"] for m, v in measures["experiments"][name].items()}

@@ -1,6 +1,17 @@
-"""What ``python evaluate.py`` does: evaluate every trained (mode, seed) of every experiment
-found, aggregate over seeds, compare the modes pairwise, test every input channel causally,
-and test the main models on unseen and held-out maps (``analysis/generalization.py``).
+"""The report's evaluation of the trained agents (``python -m analysis.pipeline``, run by
+``make p2-evaluate``): every trained (mode, seed) of every experiment found (the main one and
+the studies beside it), aggregated over seeds, the modes compared pairwise, every input
+channel tested causally, the baselines beside them, and the main models tested on unseen and
+held-out maps (``analysis/generalization.py``); ``analysis/outputs.py`` writes every file of
+``evaluation_results/``.
+
+    python -m analysis.pipeline                       # from problem2/, as make runs it
+    python -m analysis.pipeline --checkpoint my_run   # a train.py --output_dir folder
+
+It takes ``evaluate.py``'s flags and guarantees (bad flags and bad model files refused
+before anything is written) and runs the same test episodes through the same
+``MultiAgentEvaluator``: the three files ``python evaluate.py`` writes are written here in
+full, every number of theirs at the same place.
 
 Aggregates over training seeds are ``analysis.stats.seed_statistics`` dicts: ``mean``,
 ``ci95`` (percentile bootstrap over seeds, 10 000 resamples), ``iqm``, ``n``, ``per_seed``.
@@ -17,19 +28,18 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import safety  # noqa: F401  (first: checks the packages, stdlib only)
+from safety import make_console_safe, use_reproducible_matmul
+
 import numpy as np
 import torch
 from rollout import EVAL_SEED, EpisodeResults
 
+from analysis.arrivals import DECOMPOSITION, failure_decomposition
 from analysis.baselines import POLICIES
-from analysis.episodes import episode_summary
+from analysis.episodes import SUCCESS, episode_summary
 from analysis.evaluator import MultiAgentEvaluator, experiment_evaluator
-from analysis.failures import (
-    DECOMPOSITION,
-    FAILURE_DEFINITIONS,
-    FAILURE_KINDS,
-    failure_decomposition,
-)
+from analysis.failures import FAILURE_DEFINITIONS, FAILURE_KINDS
 from analysis.generalization import evaluate_generalization, evaluate_held_out
 from analysis.information import MEASURES, communication_measures
 from analysis.interventions import (
@@ -38,6 +48,7 @@ from analysis.interventions import (
     INTERVENTIONS,
     VERDICTS,
     channel_verdict,
+    intervention_test,
     legacy_message_test,
     mean_received,
     raising,
@@ -47,10 +58,16 @@ from analysis.messages import (
     message_correlations,
     message_distribution,
 )
+from analysis.outputs import write_outputs
+from analysis.report import format_report
 from analysis.runs import (
+    DEFAULT_CHECKPOINT,
     Experiment,
     best_seed,
-    relative_models_dir,
+    checked_args,
+    experiment_info,
+    make_parser,
+    read_experiment,
 )
 from analysis.stats import BOOTSTRAP_RESAMPLES, mode_differences, seed_statistics
 
@@ -130,7 +147,7 @@ def _intervention_tests(
     num_episodes: int,
 ) -> dict[str, Any]:
     """Success under every intervention on each channel the mode reads (one batch per
-    seed, :meth:`MultiAgentEvaluator.intervention_test`; ``constant_mean`` is the mode's
+    seed, :func:`analysis.interventions.intervention_test`; ``constant_mean`` is the mode's
     mean received value over its seeds), Δsuccess (intervention − real, paired by episode
     and exploration draws) as seed statistics, and a verdict."""
     channels = tuple(c for c in CHANNEL_MODES if mode in CHANNEL_MODES[c])
@@ -144,7 +161,7 @@ def _intervention_tests(
         for condition in CONDITIONS
     }
     rates = {
-        seed: evaluator.intervention_test(num_episodes, real[seed], channels, constants, seed)
+        seed: intervention_test(evaluator, num_episodes, real[seed], channels, constants, seed)
         for seed, evaluator in evaluators.items()
     }
     tests: dict[str, Any] = {}
@@ -180,9 +197,8 @@ def condition_summaries(
     decomposition."""
     target = evaluator.setting.target
     return {
-        name: episode_summary(runs[name], target, evaluator.conditions[name])
-        | {"failure_decomposition": failure_decomposition(runs[name], target)}
-        for name in CONDITIONS
+        name: summary | {"failure_decomposition": failure_decomposition(runs[name], target)}
+        for name, summary in evaluator.summaries(runs).items()
     }
 
 
@@ -294,13 +310,7 @@ def evaluate_experiment(
         if name == "oracle":
             explored = evaluator.run(num_episodes, epsilon)
             baselines[name]["eps"] = episode_summary(explored, evaluator.setting.target, epsilon)
-    settings = experiment.settings
-    info = {
-        key: settings.get(key) for key in ("map_seed", "reward_mode", "comm_learning", "max_steps")
-    }
-    info |= {"models_dir": relative_models_dir(experiment.name), "grid": experiment.grid.tolist()}
-    info["manifest"] = experiment.manifest is not None
-    info["target"] = [int(v) for v in np.argwhere(experiment.grid == 2)[0]]
+    info = experiment_info(experiment)
     outcome = ExperimentOutcome(
         performance={**info, "baselines": baselines, "modes": {}},
         communication={"map_seed": info["map_seed"], "modes": {}},
@@ -339,7 +349,7 @@ def evaluate_all(
         "conditions": {"greedy": 0.0, "eps": args.epsilon},
         "bootstrap_resamples": BOOTSTRAP_RESAMPLES,
         "confidence": 0.95,
-        "success": "both agents on the target on the same step within max_steps",
+        "success": SUCCESS,
         "mode_differences": MODE_DIFFERENCES,
     }
     outcomes, start = {}, time.perf_counter()
@@ -370,3 +380,67 @@ def evaluate_all(
         )
         print(f"evaluated generalisation ({time.perf_counter() - start:.0f} s)")
     return results, outcomes
+
+
+def study_model_dirs(checkpoint_dir: Path) -> list[tuple[str, Path]]:
+    """(name, agent_models folder) of the main experiment (``checkpoint_dir`` itself) and
+    of every study that may exist under ``<checkpoint_dir>/../studies``."""
+    studies = checkpoint_dir.parent / "studies"
+    candidates = [("main", checkpoint_dir), ("per_step", studies / "per_step" / "agent_models")]
+    candidates.append(("no_dial", studies / "no_dial" / "agent_models"))
+    return candidates
+
+
+def discover_experiments(checkpoint_dir: Path = DEFAULT_CHECKPOINT) -> list[Experiment]:
+    """Every experiment with model files: the main one in ``checkpoint_dir``, then the
+    studies beside it (see :func:`study_model_dirs`); those without models are skipped."""
+    experiments = []
+    for name, models_dir in study_model_dirs(Path(checkpoint_dir)):
+        if (experiment := read_experiment(name, models_dir)) is not None:
+            experiments.append(experiment)
+    return experiments
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = make_parser(__doc__.split("\n\n")[0], prog="python -m analysis.pipeline")
+    parser.add_argument(
+        "--generalization_episodes",
+        "--generalization-episodes",
+        type=int,
+        default=500,
+        help="test episodes per model and map, generalisation test",
+    )
+    return checked_args(parser, argv)
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """Evaluate every experiment found from the checkpoint folder and write every output.
+    A missing, damaged or unlisted model file ends the run (exit status 1) naming it,
+    before anything is written: the manifests' checksums are checked when the experiments
+    are found, and each pair is loaded and checked where it is evaluated."""
+    use_reproducible_matmul()  # before the first matrix product
+    make_console_safe()
+    args = parse_args(argv)
+    torch.set_num_threads(1)  # batches of ~1000 rows: one thread is fast and leaves cores free
+    try:
+        experiments = discover_experiments(args.checkpoint)
+        if not experiments:
+            raise FileNotFoundError(f"no trained models in {args.checkpoint}; run train.py first")
+        for experiment in experiments:
+            if experiment.manifest is None:
+                print(
+                    f"note: no manifest.json in {experiment.models_dir}: evaluating the "
+                    "model files found there"
+                )
+        results, outcomes = evaluate_all(experiments, args)
+    except (FileNotFoundError, ValueError) as error:
+        raise SystemExit(f"python -m analysis.pipeline: error: {error}") from error
+    output_dir = args.output_dir or args.checkpoint.parent / "evaluation_results"
+    write_outputs(results, outcomes, output_dir)
+    print(format_report(results, brief=True))
+    print(f"wrote {output_dir}")
+    return results
+
+
+if __name__ == "__main__":
+    main()

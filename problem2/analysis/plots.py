@@ -1,13 +1,12 @@
-"""Figures of Problem 2's evaluation: episode paths (and the choice of the episodes shown),
-the message per grid cell and an animated episode (the estimates with intervals are in
-:mod:`analysis.estimate_plots`). Figures use
+"""Figures of Problem 2's evaluation: episode paths (and the choice of the episodes shown) and
+the message per grid cell (the estimates with intervals are in :mod:`analysis.estimate_plots`,
+an animated episode in :mod:`analysis.animation`). Figures use
 ``matplotlib.figure.Figure`` (no pyplot) and are written atomically. Each static figure is
 drawn at the width (inches) at which the report places it (``WIDTHS``), with text of at
 least ``MIN_FONT`` points: legible when printed."""
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -17,14 +16,14 @@ from safety import temporary_path_for
 
 import numpy as np
 from grid_maps import OBSTACLE, TARGET
-from matplotlib.animation import FuncAnimation, PillowWriter
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator, StrMethodFormatter
-from models import MASKED_INPUTS, MESSAGE_INDEX
 from rollout import EpisodeResults
+from vector_env import MASKED_INPUTS, MESSAGE_INDEX
 
 from analysis.failures import FAILURE_KINDS, classify_failures
+from analysis.messages import mean_message_per_cell
 
 AGENT_COLOURS = ("#1f77b4", "#d62728")  # A blue, B red
 AGENT_OFFSETS = (-0.12, 0.12)  # so that the two paths stay apart where they overlap
@@ -113,6 +112,21 @@ def representative_traces(
             failure = failure or representative_failure(runs[name], target, label)
             longest = longest or longest_success(runs[name], label)
     return [success, failure or longest]
+
+
+def strategy_rows(
+    runs: dict[str, dict[str, EpisodeResults]], experiment: dict
+) -> tuple[list[tuple[str, list[EpisodeTrace | None]]], list[np.ndarray]]:
+    """The rows of ``trajectories.png`` (:func:`plot_trajectories`) and the mean message
+    per cell of each, from ``runs[mode]`` (the greedy and ε-greedy episodes of the mode's
+    best seed) and ``experiment`` (its entry in performance.json: grid, target, modes)."""
+    shape, target = np.shape(experiment["grid"]), tuple(experiment["target"])
+    rows, messages = [], []
+    for mode, mode_runs in runs.items():
+        label = f"{mode} (seed {experiment['modes'][mode]['best_seed']})"
+        rows.append((label, representative_traces(mode_runs, target)))
+        messages.append(mean_message_per_cell(mode_runs["greedy"], shape))
+    return rows, messages
 
 
 FONT_SIZES = {
@@ -359,53 +373,6 @@ def _viridis_with_grey():
     from matplotlib import colormaps
 
     return colormaps["viridis"].with_extremes(bad="0.88")
-
-
-def save_episode_gif(
-    trace: EpisodeTrace, grid: np.ndarray, path: str | Path, title: str, fps: int = 3
-) -> Path:
-    """Animate one episode: both agents on the map with their trails, and the message each
-    sends at that step written beside it, one frame per step plus the final position."""
-    fig = Figure(figsize=(5.2, 5.4))
-    ax = fig.add_axes((0.12, 0.13, 0.8, 0.76))  # fixed layout: fast frames
-    draw_map(ax, grid)
-    markers, trails, labels = [], [], []
-    for agent in range(2):
-        colour = AGENT_COLOURS[agent]
-        markers.append(ax.plot([], [], "o", color=colour, markersize=13)[0])
-        trails.append(ax.plot([], [], color=colour, alpha=0.5)[0])
-        labels.append(ax.text(0, 0, "", color=colour, fontsize=9, fontweight="bold"))
-    caption = fig.text(0.5, 0.02, "", ha="center", fontsize=9)
-    heading = fig.suptitle(title)
-
-    def draw(frame: int) -> list:
-        sent = trace.messages[min(frame, trace.length - 1)]
-        for agent in range(2):
-            path = trace.positions[: frame + 1, agent] + AGENT_OFFSETS[agent]
-            markers[agent].set_data([path[-1, 1]], [path[-1, 0]])
-            trails[agent].set_data(path[:, 1], path[:, 0])
-            labels[agent].set_position((path[-1, 1] + 0.25, path[-1, 0] - 0.25 + 0.5 * agent))
-            labels[agent].set_text(f"{sent[agent]:.2f}")
-        caption.set_text(
-            f"messages sent (0–1): A (blue) → B {sent[0]:.2f}, B (red) → A {sent[1]:.2f}"
-            if frame < trace.length
-            else "episode over"
-        )
-        done = " — both on the target" if frame == trace.length and trace.success else ""
-        heading.set_text(f"{title}: step {frame}/{trace.length}{done}")
-        return [*markers, *trails, *labels, caption, heading]
-
-    animation = FuncAnimation(fig, draw, frames=trace.length + 1, blit=False)
-    final = Path(path)
-    with temporary_path_for(final) as temporary:
-        # Pillow picks the format from the file name's suffix, so write a *.gif first.
-        staged = temporary.with_name(temporary.name + ".gif")
-        try:
-            animation.save(staged, writer=PillowWriter(fps=fps), dpi=72)
-            os.replace(staged, temporary)
-        finally:
-            staged.unlink(missing_ok=True)
-    return final
 
 
 def save_figure(fig: Figure, path: str | Path, dpi: int = 120) -> Path:

@@ -1,16 +1,13 @@
 """The Markdown comparison of Problem 2's evaluation (``comparison_table.md``), built from
-the results dict of ``analysis.pipeline.evaluate_all``, and the course's
-``create_evaluation_report`` (any results dict as JSON)."""
+the results dict of ``analysis.pipeline.evaluate_all``. (The course's
+``create_evaluation_report`` is in ``evaluate.py``.)"""
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
 from typing import Any
 
-from safety import temporary_path_for
-
-from analysis.failures import DECOMPOSITION, FAILURE_KINDS
+from analysis.arrivals import DECOMPOSITION
+from analysis.failures import FAILURE_KINDS
 
 
 def _stat(stat: dict | None, digits: int = 3) -> str:
@@ -378,17 +375,3 @@ def format_report(results: dict[str, Any], brief: bool = False) -> str:
         sections.append(held_out_section(results.get("generalization")))
     title = [] if brief else ["# Problem 2: evaluation of the trained agents", ""]
     return "\n".join(title + [line for section in sections for line in section])
-
-
-def create_evaluation_report(
-    results: dict[str, Any], save_path: str | Path = "results/evaluation_report.json"
-) -> Path:
-    """Write ``results`` (any JSON-serialisable dict, e.g. what ``evaluate_performance`` or
-    ``python evaluate.py`` returns) to ``save_path`` as indented UTF-8 JSON, atomically;
-    the parent folder is created. NaN or Infinity is refused (ValueError): not JSON."""
-    if not isinstance(results, dict):
-        raise TypeError(f"results must be a dict, got {type(results).__name__}")
-    text = json.dumps(results, indent=2, allow_nan=False) + "\n"
-    with temporary_path_for(save_path) as temporary:
-        temporary.write_text(text, encoding="utf-8")
-    return Path(save_path)

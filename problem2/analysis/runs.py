@@ -6,7 +6,8 @@ Layout of an experiment root (written by ``train.py``):
 ``agent_models/<mode>_seed<seed>_agent_{A,B}.pt``, ``agent_models/<mode>_agent_{A,B}.pt``
 (the best seed), ``agent_models/map.json``, ``agent_models/hyperparameters.json``.
 Study roots (same layout) live under ``<root>/studies/``: ``per_step`` and ``no_dial``
-(the map panel's batches under ``studies/panel/`` are evaluated by ``studies/panel.py``).
+(found by ``analysis.pipeline.discover_experiments``; the map panel's batches under
+``studies/panel/`` are evaluated by ``studies/panel.py``).
 
 A batch written by ``train.py`` carries ``agent_models/manifest.json`` (modes, seeds, map,
 hyperparameters, the sha256 of every model file). Where it exists, exactly its runs are
@@ -17,20 +18,25 @@ evaluated (``Experiment.manifest`` is then None, and ``evaluate.py`` says so).
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import json
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 from grid_maps import DEFAULT_MAP_SEED, check_grid, generate_map
-from models import OBSERVATION_DIM, quiet_torchscript
+from rollout import EVAL_EPSILON
+from vector_env import MASKED_INPUTS, OBSERVATION_DIM
 
 PROBLEM2 = Path(__file__).resolve().parent.parent
 DEFAULT_ROOT = PROBLEM2 / "results"
-MODES = ("independent", "comm", "distance", "full")
+DEFAULT_CHECKPOINT = DEFAULT_ROOT / "agent_models"
+EPISODES_RANGE = (1, 5000)  # of every --*episodes flag
+MODES = tuple(MASKED_INPUTS)  # independent, comm, distance, full
 NUM_ACTIONS = 5
 SEED_FILE = re.compile(r"^(independent|comm|distance|full)_seed(\d+)_agent_A\.pt$")
 MANIFEST = "manifest.json"
@@ -68,7 +74,10 @@ def load_policy(path: str | Path) -> torch.jit.ScriptModule:
     if not path.is_file():
         raise FileNotFoundError(f"no policy file at {path}")
     try:
-        with quiet_torchscript():
+        with warnings.catch_warnings():  # torch 2.13 deprecates it; the course requires it
+            warnings.filterwarnings(
+                "ignore", r"`torch\.jit\.load` is deprecated", DeprecationWarning
+            )
             policy = torch.jit.load(str(path), map_location="cpu")
     except Exception as error:  # torch raises RuntimeError or zipfile/pickle errors
         raise ValueError(f"{path} is not a valid TorchScript policy: {error}") from error
@@ -97,15 +106,6 @@ class Experiment:
         return f"{mode} ({', '.join(extras)})" if extras else mode
 
 
-def study_model_dirs(checkpoint_dir: Path) -> list[tuple[str, Path]]:
-    """(name, agent_models folder) of the main experiment (``checkpoint_dir`` itself) and
-    of every study that may exist under ``<checkpoint_dir>/../studies``."""
-    studies = checkpoint_dir.parent / "studies"
-    candidates = [("main", checkpoint_dir), ("per_step", studies / "per_step" / "agent_models")]
-    candidates.append(("no_dial", studies / "no_dial" / "agent_models"))
-    return candidates
-
-
 def sha256_of(path: Path) -> str:
     """Hex sha256 of the file's bytes."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
@@ -113,8 +113,22 @@ def sha256_of(path: Path) -> str:
 
 def relative_models_dir(name: str) -> str:
     """The agent_models folder of experiment ``name`` relative to the results root (as
-    :func:`study_model_dirs` lays them out), for outputs that must hold no absolute path."""
+    ``analysis.pipeline.study_model_dirs`` lays them out), for outputs that must hold no
+    absolute path."""
     return "agent_models" if name == "main" else f"studies/{name}/agent_models"
+
+
+def experiment_info(experiment: Experiment) -> dict:
+    """What an evaluation's files say of ``experiment``: its settings, models folder (relative
+    to the results root), map, target, and whether a manifest listed its models."""
+    info = {
+        key: experiment.settings.get(key)
+        for key in ("map_seed", "reward_mode", "comm_learning", "max_steps")
+    }
+    info |= {"models_dir": relative_models_dir(experiment.name), "grid": experiment.grid.tolist()}
+    info["manifest"] = experiment.manifest is not None
+    info["target"] = [int(v) for v in np.argwhere(experiment.grid == 2)[0]]
+    return info
 
 
 def read_manifest(models_dir: Path) -> dict | None:
@@ -221,16 +235,6 @@ def read_experiment(name: str, models_dir: Path) -> Experiment | None:
     settings, grid = _settings_and_grid(models_dir, manifest)
     seeds = {mode: sorted(found[mode]) for mode in MODES if mode in found}
     return Experiment(name, models_dir, settings, grid, seeds, manifest, best)
-
-
-def discover_experiments(checkpoint_dir: Path = DEFAULT_ROOT / "agent_models") -> list[Experiment]:
-    """Every experiment with model files: the main one in ``checkpoint_dir``, then the
-    studies beside it (see :func:`study_model_dirs`); those without models are skipped."""
-    experiments = []
-    for name, models_dir in study_model_dirs(Path(checkpoint_dir)):
-        if (experiment := read_experiment(name, models_dir)) is not None:
-            experiments.append(experiment)
-    return experiments
 
 
 def resolve_checkpoint(path: Path) -> tuple[Path, str | None]:
@@ -366,3 +370,65 @@ def best_seed(experiment: Experiment, mode: str) -> int | None:
         f"{best_A} / {best_B}: the best {mode} pair matches no {mode}_seed<seed> pair of "
         f"{experiment.models_dir} (replaced or left from another run)"
     )
+
+
+def make_parser(description: str, prog: str | None = None) -> argparse.ArgumentParser:
+    """The flags ``python evaluate.py`` and ``python -m analysis.pipeline`` share."""
+    parser = argparse.ArgumentParser(
+        prog=prog,
+        allow_abbrev=False,
+        description=description,
+        epilog="Relative paths are resolved against the current folder.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument(
+        "--checkpoint",
+        "--checkpoint_dir",
+        "--checkpoint-dir",
+        type=Path,
+        default=DEFAULT_CHECKPOINT,
+        help="agent_models folder of the main experiment, or the run folder holding it "
+        "(relative to the current folder; the default is this package's "
+        "results/agent_models, from any folder). With a manifest.json exactly its runs are "
+        "evaluated, every file checked against it; without one, the model files found are",
+    )
+    parser.add_argument(
+        "--num_episodes",
+        "--num-episodes",
+        type=int,
+        default=1000,
+        help="test episodes per trained seed and condition",
+    )
+    parser.add_argument(
+        "--epsilon",
+        type=float,
+        default=EVAL_EPSILON,
+        help="exploration rate of the ε-greedy condition",
+    )
+    parser.add_argument(
+        "--output_dir",
+        "--output-dir",
+        type=Path,
+        default=None,
+        help="output folder; None: evaluation_results beside the agent_models folder",
+    )
+    return parser
+
+
+def checked_args(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
+    """``parser``'s flags, each in its range (else a usage error naming the flag and the
+    range), ``checkpoint`` resolved to the agent_models folder."""
+    args = parser.parse_args(argv)
+    low, high = EPISODES_RANGE
+    for flag, value in vars(args).items():
+        if flag.endswith("episodes") and not low <= value <= high:
+            parser.error(f"--{flag} must be an integer in {low}..{high}, got {value}")
+    if not 0 <= args.epsilon <= 1:
+        parser.error(f"--epsilon must lie in [0, 1], got {args.epsilon}")
+    try:
+        args.checkpoint, note = resolve_checkpoint(args.checkpoint)
+    except ValueError as error:
+        parser.error(str(error))
+    if note:
+        print(note)
+    return args

@@ -15,8 +15,9 @@ import json
 from pathlib import Path
 
 import safety  # noqa: F401  (first: checks the packages, stdlib only)
-from safety import MANIFEST, use_reproducible_matmul
+from safety import use_reproducible_matmul
 
+from output_folder import MANIFEST
 from settings import DEFAULT_OUTPUT_DIR
 from train import plot_training_curves
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from analysis.baselines import target_distances
+from analysis.episodes import target_distances
 from grid_maps import ACTION_DELTAS, NUM_ACTIONS, OBSTACLE, TARGET
 from vector_env import ARRIVAL_REWARD, BOTH_ON_TARGET_REWARD, STEP_REWARD
 

@@ -207,7 +207,7 @@ def main(argv: list[str] | None = None) -> None:
     interventions = json.loads(INTERVENTIONS.read_text(encoding="utf-8"))
     result = multiplicity(panel, interventions)
     write_json_atomic(args.output, result)
-    plot_effects(PANEL.parent / "panel_effects.png", panel)
+    plot_effects(PANEL.parent / "panel_effects.png", panel, result["panel_effects"]["maps"])
     for family in ("panel_effects", "interventions"):
         s = result[family]["summary"]
         print(

@@ -54,6 +54,7 @@ from grid_maps import DEFAULT_MAP_SEED, OBSTACLE, TARGET
 from rollout import EVAL_EPSILON, EVAL_SEED
 from settings import available_cores
 
+from studies.multiplicity import panel_effects
 from studies.panel_behaviour import BEHAVIOUR, beacon_behaviour, mode_behaviour, seed_behaviour
 from studies.panel_outputs import format_table, panel_summary, plot_effects, write_csv
 
@@ -292,7 +293,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     results = summarise([entry for entry, _ in done], args.num_episodes)
     write_json_atomic(args.panel_dir / "panel.json", results)
     write_csv(args.panel_dir / "panel.csv", results)
-    plot_effects(args.panel_dir / "panel_effects.png", results)
+    plot_effects(args.panel_dir / "panel_effects.png", results, panel_effects(results)["maps"])
     timing = {
         f"map{m}": round(seconds, 1) for (m, _, _), (_, seconds) in zip(jobs, done, strict=True)
     }

@@ -1,7 +1,7 @@
 """What the agents of the map panel (``studies/panel.py``) do with the channels, from the
 recorded test episodes of each seed: homing while the partner waits on the target (by
-shortest path, ``analysis.failures.homing_counts``), who reaches the target first and how long
-the pair then takes to meet (``analysis.failures.arrivals``), beside the beacon explorer's;
+shortest path, ``analysis.arrivals.homing_counts``), who reaches the target first and how long
+the pair then takes to meet (``analysis.arrivals.arrivals``), beside the beacon explorer's;
 and, from the evaluated entries, the message on and off the target, the measures of Lowe et
 al. and the interventions."""
 
@@ -11,9 +11,10 @@ from functools import partial
 from typing import Any
 
 import numpy as np
-from analysis.baselines import POLICIES, target_distances
+from analysis.arrivals import arrivals, homing_counts, homing_shares
+from analysis.baselines import POLICIES
+from analysis.episodes import target_distances
 from analysis.evaluator import MultiAgentEvaluator, experiment_evaluator
-from analysis.failures import arrivals, homing_counts, homing_shares
 from analysis.pipeline import CONDITIONS
 from analysis.runs import Experiment
 from analysis.stats import seed_statistics

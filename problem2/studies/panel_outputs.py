@@ -89,14 +89,12 @@ def contrast_text(coefficients: dict[str, float]) -> str:
     return text
 
 
-def plot_effects(path: Path, results: dict[str, Any]) -> None:
+def plot_effects(path: Path, results: dict[str, Any], corrected: dict[str, Any]) -> None:
     """``panel_effects.png``: one panel per effect (ε = 0.05), each map's effect against the
     map property with its 95 % interval; filled markers where the effect is established after
-    Holm's correction over the panel's 48 effects (``studies.multiplicity``), the assignment's
-    map in red; map seeds beside the filled points and the assignment's."""
-    from studies.multiplicity import panel_effects
-
-    corrected = panel_effects(results)["maps"]
+    Holm's correction over the panel's 48 effects (``corrected``: the ``maps`` of
+    ``studies.multiplicity.panel_effects``), the assignment's map in red; map seeds beside
+    the filled points and the assignment's."""
     prop = results["protocol"]["property"]["name"]
     effects = list(results["protocol"]["effects"])
     maps = list(results["maps"].values())

@@ -29,9 +29,9 @@ from safety import use_reproducible_matmul, write_json_atomic
 
 import numpy as np
 import torch
-from analysis.baselines import target_distances
+from analysis.arrivals import arrivals
+from analysis.episodes import target_distances
 from analysis.evaluator import MultiAgentEvaluator
-from analysis.failures import arrivals
 from analysis.runs import Experiment, load_model_pair, read_experiment
 from analysis.stats import seed_statistics
 from grid_maps import DEFAULT_MAP_SEED, TARGET, generate_map

@@ -27,8 +27,8 @@ from safety import use_reproducible_matmul, write_json_atomic
 import numpy as np
 import torch
 import train
+from analysis.arrivals import arrivals
 from analysis.episodes import EvaluationSetting, model_policy, recorded_episodes
-from analysis.failures import arrivals
 from analysis.runs import load_map, load_model_pair
 from rollout import VALIDATION_SEED
 from train import read_csv

@@ -14,8 +14,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from safety import remove_stale_temporaries, write_json_atomic
+from safety import write_json_atomic
 
+from output_folder import remove_stale_temporaries
 from settings import check_setting
 from trainer import DQNTrainer
 

@@ -17,12 +17,14 @@ from analysis.baselines import (
     evaluate_baselines,
     format_table,
     main,
-    oracle_policy,
     random_policy,
+)
+from analysis.episodes import (
+    oracle_policy,
+    recorded_episodes,
     shortest_path_actions,
     target_distances,
 )
-from analysis.episodes import recorded_episodes
 from grid_maps import ACTION_DELTAS, generate_map
 from rollout import evaluate_policy, run_episodes
 from vector_env import VectorMultiAgentEnv

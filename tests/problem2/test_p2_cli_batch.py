@@ -16,10 +16,9 @@ import sys
 import time
 from pathlib import Path
 
-from safety import remove_stale_temporaries
-
 import pytest
 from batch.plumbing import ProgressLine, run_jobs
+from output_folder import remove_stale_temporaries
 from rollout import select_best
 from settings import SettingError
 

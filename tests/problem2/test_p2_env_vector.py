@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from analysis.baselines import target_distances
+from analysis.episodes import target_distances
 from analysis.runs import load_map
 from batch.plumbing import save_map
 from grid_maps import generate_map

@@ -8,15 +8,11 @@ import json
 
 import numpy as np
 import pytest
-from analysis.baselines import POLICIES, explorer_policy, oracle_policy, random_policy
-from analysis.evaluator import block_policy
-from analysis.failures import (
-    FAILURE_KINDS,
-    arrivals,
-    classify_failures,
-    failure_decomposition,
-    on_target,
-)
+from analysis.arrivals import arrivals, failure_decomposition
+from analysis.baselines import POLICIES, explorer_policy, random_policy
+from analysis.episodes import oracle_policy
+from analysis.failures import FAILURE_KINDS, classify_failures, on_target
+from analysis.generalization import block_policy
 from analysis.information import causal_influence, mutual_information
 from analysis.interventions import (
     INTERVENTIONS,
@@ -30,10 +26,9 @@ from analysis.interventions import (
 from analysis.plots import EpisodeTrace, waiting_steps
 from analysis.stats import bootstrap_ci, interquartile_mean, mode_differences, seed_statistics
 from evaluate import MultiAgentEvaluator
-from models import MESSAGE_INDEX
 from multi_agent_env import MultiAgentEnv
 from rollout import EpisodeResults, run_episodes, select_best, summarize
-from vector_env import VectorMultiAgentEnv
+from vector_env import MESSAGE_INDEX, VectorMultiAgentEnv
 
 from tests.conftest import PROBLEM2
 

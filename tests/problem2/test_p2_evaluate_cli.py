@@ -1,5 +1,6 @@
-"""``python evaluate.py`` on tiny smoke-run models: every output file, study discovery, the
-batch manifest, clear errors for bad model files and paths, a cp1252 console, and the
+"""``python evaluate.py`` and ``python -m analysis.pipeline`` on tiny smoke-run models: every
+output file, the course's three files as the pipeline writes them in full, study discovery,
+the batch manifest, clear errors for bad model files and paths, a cp1252 console, and the
 course interface used as a grader would (defaults, plain networks)."""
 
 from __future__ import annotations
@@ -15,14 +16,16 @@ import evaluate as evaluate_module
 import numpy as np
 import pytest
 import torch
-from analysis import baselines
+from analysis import baselines, pipeline
 from analysis.baselines import POLICIES
 from analysis.episodes import model_policy
 from analysis.evaluator import experiment_evaluator
+from analysis.failures import FAILURE_KINDS
 from analysis.generalization import models_on_maps
 from analysis.information import MEASURES
-from analysis.interventions import INTERVENTIONS
-from analysis.runs import best_seed, discover_experiments, load_map, sha256_of
+from analysis.interventions import INTERVENTIONS, intervention_test
+from analysis.pipeline import discover_experiments
+from analysis.runs import best_seed, load_map, sha256_of
 from evaluate import (
     MultiAgentEvaluator,
     create_evaluation_report,
@@ -79,12 +82,71 @@ def tiny_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def evaluated(tiny_root: Path) -> tuple[dict, Path]:
+    """The report's evaluation (``python -m analysis.pipeline``) of the tiny models."""
     output = tiny_root / "evaluation_results"
     argv = ["--checkpoint", str(tiny_root), "--num_episodes", str(EPISODES)]  # the run folder
-    return main(argv + ["--generalization_episodes", "10", "--render"]), output
+    return pipeline.main(argv + ["--generalization_episodes", "10"]), output
 
 
-def test_evaluate_writes_every_output(evaluated: tuple[dict, Path]) -> None:
+@pytest.fixture(scope="module")
+def course_run(tiny_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
+    """``python evaluate.py`` of the same models, into a folder of its own."""
+    output = tmp_path_factory.mktemp("course") / "evaluation_results"
+    argv = ["--checkpoint", str(tiny_root), "--num_episodes", str(EPISODES)]
+    return main(argv + ["--output_dir", str(output), "--render"]), output
+
+
+COURSE_FILES = ("performance.json", "communication_analysis.json", "trajectories.png")
+
+
+def leaves(data: object, path: tuple = ()) -> dict[tuple, object]:
+    """Every value of nested dicts that is not a dict, by its path of keys."""
+    if not isinstance(data, dict):
+        return {path: data}
+    return {k: v for key, value in data.items() for k, v in leaves(value, (*path, key)).items()}
+
+
+def test_evaluate_writes_the_course_files(course_run: tuple[dict, Path]) -> None:
+    """evaluate.py writes the assignment's three files, and only those: each mode's success
+    greedy and ε-greedy per seed and the mean over seeds, and what the messages say."""
+    results, output = course_run
+    assert sorted(p.name for p in output.iterdir()) == sorted(COURSE_FILES)
+    performance = json.loads((output / "performance.json").read_text("utf-8"))
+    assert results["performance"] == performance
+    full = performance["experiments"]["main"]["modes"]["full"]
+    assert full["seeds"] == [641, 642] and full["best_seed"] in (641, 642)
+    for condition in ("greedy", "eps"):
+        rate = full[condition]["success_rate"]
+        per_seed = [full["per_seed"][str(s)][condition]["success_rate"] for s in (641, 642)]
+        assert rate["per_seed"] == per_seed and rate["mean"] == pytest.approx(np.mean(per_seed))
+        assert set(full["per_seed"]["641"][condition]["failures"]) >= set(FAILURE_KINDS)
+    analysis = json.loads((output / "communication_analysis.json").read_text("utf-8"))
+    assert set(analysis["experiments"]["main"]["modes"]["comm"]["per_seed"]["641"]) == {
+        "messages",
+        "correlations",
+    }
+
+
+def test_the_pipeline_writes_the_course_files_in_full(
+    course_run: tuple[dict, Path], evaluated: tuple[dict, Path], tiny_root: Path, capsys
+) -> None:
+    """Every number evaluate.py writes stands at the same place in the pipeline's files, the
+    figure has the same bytes; evaluate.py run on the pipeline's folder keeps its JSON files
+    and rewrites the figure byte for byte."""
+    _, course = course_run
+    _, output = evaluated
+    for name in COURSE_FILES[:2]:
+        part = leaves(json.loads((course / name).read_text("utf-8")))
+        full = leaves(json.loads((output / name).read_text("utf-8")))
+        assert part and all(full.get(path, ()) == value for path, value in part.items()), name
+    assert (course / "trajectories.png").read_bytes() == (output / "trajectories.png").read_bytes()
+    before = {name: (output / name).read_bytes() for name in COURSE_FILES}
+    main(["--checkpoint", str(tiny_root), "--num_episodes", str(EPISODES)])
+    assert "performance.json: the file there holds every number" in capsys.readouterr().out
+    assert {name: (output / name).read_bytes() for name in COURSE_FILES} == before
+
+
+def test_the_pipeline_writes_every_output(evaluated: tuple[dict, Path]) -> None:
     results, output = evaluated
     for name in OUTPUTS:
         assert (output / name).is_file() and (output / name).stat().st_size > 0, name
@@ -239,9 +301,11 @@ def test_interventions_measures_and_decomposition_are_written(
     assert rows[0].startswith("experiment,mode,channel") and len(rows) > 20
 
 
-def test_no_output_holds_an_absolute_path(evaluated: tuple[dict, Path], tiny_root: Path) -> None:
-    _, output = evaluated
-    for path in output.glob("*.*"):
+def test_no_output_holds_an_absolute_path(
+    evaluated: tuple[dict, Path], course_run: tuple[dict, Path], tiny_root: Path
+) -> None:
+    paths = [*evaluated[1].glob("*.*"), *course_run[1].glob("*.*")]
+    for path in paths:
         if path.suffix in (".json", ".csv", ".md"):
             text = path.read_text(encoding="utf-8")
             assert str(tiny_root) not in text and str(PROBLEM2) not in text, path.name
@@ -276,7 +340,7 @@ def test_interventions_cannot_matter_to_independent_agents(tiny_root: Path) -> N
     models = tiny_root / "agent_models"
     env = MultiAgentEnv(grid=load_map(models / "map.json"))
     evaluator = MultiAgentEvaluator(env, *load_trained_models(models, "independent"))
-    tests = evaluator.intervention_test(100)
+    tests = intervention_test(evaluator, 100)
     for channel in ("message", "distance"):
         for condition in ("greedy", "eps"):
             rates = tests[channel][condition]
@@ -304,29 +368,36 @@ def test_studies_are_discovered_with_their_labels(tiny_root: Path, tmp_path: Pat
 
 
 def _quick(models: Path, *extra: str) -> list[str]:
-    return [
-        "--checkpoint",
-        str(models),
-        "--num_episodes",
-        "10",
-        "--generalization_episodes",
-        "5",
+    """evaluate.py's flags for a quick run (the pipeline's: add ``PIPELINE_QUICK``)."""
+    return ["--checkpoint", str(models), "--num_episodes", "10"] + [
         "--output_dir",
         str(models.parent / "out"),
         *extra,
     ]
 
 
+PIPELINE_QUICK = ("--generalization_episodes", "5")
+COMMANDS = {"evaluate.py": main, "analysis.pipeline": pipeline.main}  # each with its flags
+
+
+def _run(command: str, models: Path) -> None:
+    """``main`` of ``command`` on ``models``, quick."""
+    extra = PIPELINE_QUICK if command == "analysis.pipeline" else ()
+    COMMANDS[command](_quick(models, *extra))
+
+
 def test_missing_or_corrupt_model_files_are_named(tiny_root: Path, tmp_path: Path) -> None:
     models = tmp_path / "agent_models"
     shutil.copytree(tiny_root / "agent_models", models)
     (models / "comm_seed642_agent_B.pt").unlink()
-    with pytest.raises(SystemExit, match="comm_seed642_agent_B.pt"):
-        main(_quick(models))
+    for command in COMMANDS:
+        with pytest.raises(SystemExit, match="comm_seed642_agent_B.pt"):
+            _run(command, models)
     shutil.copy(tiny_root / "agent_models" / "comm_seed642_agent_B.pt", models)
     (models / "full_agent_A.pt").write_bytes(os.urandom(2000))  # the best pair damaged
-    with pytest.raises(SystemExit, match="full_agent_A.pt"):
-        main(_quick(models))
+    for command in COMMANDS:
+        with pytest.raises(SystemExit, match="full_agent_A.pt"):
+            _run(command, models)
     with pytest.raises(ValueError, match="full_agent_A.pt"):
         load_trained_models(models, "full")
     with pytest.raises(FileNotFoundError, match="does not exist"):
@@ -340,10 +411,11 @@ def test_bad_checkpoint_paths_are_usage_errors(tiny_root: Path, tmp_path: Path, 
         (tmp_path / "nowhere", "no such folder"),
         (tmp_path, "no trained models"),
     ):
-        with pytest.raises(SystemExit) as exit_info:
-            main(["--checkpoint", str(path)])
-        assert exit_info.value.code == 2
-        assert message in capsys.readouterr().err
+        for command in COMMANDS.values():
+            with pytest.raises(SystemExit) as exit_info:
+                command(["--checkpoint", str(path)])
+            assert exit_info.value.code == 2
+            assert message in capsys.readouterr().err
 
 
 def test_checkpoint_is_relative_to_the_current_folder(
@@ -385,8 +457,10 @@ def test_models_with_bad_outputs_are_named(
     shutil.copytree(tiny_root / "agent_models", models)
     (models / "manifest.json").unlink()  # else the changed file is refused as "damaged"
     _export_bad(models / "comm_seed641_agent_B.pt", kind)
-    with pytest.raises(SystemExit, match=f"comm_seed641_agent_B.pt.*{message}"):
-        main(_quick(models))
+    for command in COMMANDS:
+        with pytest.raises(SystemExit, match=f"comm_seed641_agent_B.pt.*{message}"):
+            _run(command, models)
+    assert not (tmp_path / "out").exists()  # refused before anything was written
     result = subprocess.run(
         [sys.executable, "evaluate.py", *_quick(models)],
         cwd=PROBLEM2,
@@ -522,7 +596,7 @@ def test_course_interface_as_a_grader_uses_it(
 
 
 def test_help_states_defaults_and_the_path_rule(capsys) -> None:
-    for module in (evaluate_module, baselines):
+    for module in (evaluate_module, pipeline, baselines):
         with pytest.raises(SystemExit) as exit_info:
             module.main(["--help"])
         assert exit_info.value.code == 0

@@ -12,10 +12,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-import safety
-
+import output_folder
 import pytest
-from analysis.runs import discover_experiments, resolve_checkpoint
+from analysis.pipeline import discover_experiments
+from analysis.runs import resolve_checkpoint
 from settings import DEFAULT_OUTPUT_DIR, SettingError, TrainConfig, validated
 
 from tests.conftest import PROBLEM1, PROBLEM2, ROOT, load_problem_module
@@ -118,7 +118,7 @@ def check_output_dir(cfg: TrainConfig) -> None:
     """The folder rule as train.py applies it to ``cfg``."""
     root = Path(cfg.output_dir).resolve()
     default = TrainConfig().identity()
-    safety.check_output_dir(root, cfg.identity(), cfg.overwrite, DEFAULT_OUTPUT_DIR, default)
+    output_folder.check_output_dir(root, cfg.identity(), cfg.overwrite, DEFAULT_OUTPUT_DIR, default)
 
 
 def test_a_folder_inside_the_code_is_refused_even_with_overwrite(
@@ -133,7 +133,7 @@ def test_a_folder_inside_the_code_is_refused_even_with_overwrite(
         assert "choose a folder for results" in message
     assert not (PROBLEM2 / "analysis" / "new_run").exists()
     for folder in ("../report", "../problem1/results/x", ".", ".."):
-        with pytest.raises(safety.FolderError):
+        with pytest.raises(output_folder.FolderError):
             check_output_dir(TrainConfig(output_dir=folder, overwrite=True))
 
 
@@ -166,7 +166,7 @@ def fake_batch(folder: Path, digest: str) -> None:
     (folder / "agent_models").mkdir(parents=True)
     (folder / "training_logs").mkdir()
     runs = {"full_seed1": {"sha256": {"A": digest, "B": digest}}}
-    manifest = folder / "agent_models" / safety.MANIFEST
+    manifest = folder / "agent_models" / output_folder.MANIFEST
     manifest.write_text(json.dumps({"runs": runs}), encoding="utf-8")
 
 
@@ -178,9 +178,9 @@ def test_replacing_a_batch_removes_the_evaluation_of_the_old_one(
     (root / "evaluation_results").mkdir()
     (root / "evaluation_results" / "performance.json").write_text("{}", encoding="utf-8")
     fake_batch(root / ".staging.1", "new")
-    safety.install(root / ".staging.1", root)
+    output_folder.install(root / ".staging.1", root)
     assert sorted(p.name for p in root.iterdir()) == ["agent_models", "training_logs"]
-    assert "new" in (root / "agent_models" / safety.MANIFEST).read_text(encoding="utf-8")
+    assert "new" in (root / "agent_models" / output_folder.MANIFEST).read_text(encoding="utf-8")
     assert f"removed {root / 'evaluation_results'}" in capsys.readouterr().out
 
 
@@ -189,7 +189,7 @@ def test_an_evaluation_of_byte_identical_models_stays(tmp_path: Path) -> None:
     fake_batch(root, "same")
     (root / "evaluation_results").mkdir()
     fake_batch(root / ".staging.1", "same")
-    safety.install(root / ".staging.1", root)
+    output_folder.install(root / ".staging.1", root)
     assert sorted(p.name for p in root.iterdir()) == [
         "agent_models",
         "evaluation_results",

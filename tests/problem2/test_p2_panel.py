@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from analysis.baselines import target_distances
-from analysis.failures import homing_counts, homing_shares
+from analysis.arrivals import homing_counts, homing_shares
+from analysis.episodes import target_distances
 from analysis.stats import (
     average_ranks,
     mode_contrasts,

@@ -110,6 +110,7 @@ def draw_evaluation(out: Path) -> None:
 def draw_studies(out: Path) -> None:
     from studies import map_pool_study
     from studies.memory import study as memory_study
+    from studies.multiplicity import panel_effects
     from studies.one_step import beacon_study, unseen, why
     from studies.one_step.panel_outputs import plot_panel
     from studies.panel_outputs import plot_effects
@@ -122,7 +123,8 @@ def draw_studies(out: Path) -> None:
     memory_study.plot(out / "memory.png", read_json(studies / "memory" / "memory.json"), pool)
     panel = studies / "panel" / "panel.json"
     if panel.is_file():  # the report places the panel's figure only when the panel has run
-        plot_effects(out / "panel_effects.png", read_json(panel))
+        effects = read_json(panel)
+        plot_effects(out / "panel_effects.png", effects, panel_effects(effects)["maps"])
     memory_panel = studies / "memory_panel"
     if (memory_panel / "memory_panel.json").is_file():
         plot_panel(out / "memory_panel.png", read_json(memory_panel / "memory_panel.json"))

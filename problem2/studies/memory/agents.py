@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from models import MESSAGE_INDEX, OBSERVATION_DIM, observation_mask, save_scripted
+from models import OBSERVATION_DIM, observation_mask, save_scripted
 from rollout import PolicyFn
 from torch import nn
 from torch.nn import functional as F
-from vector_env import VectorMultiAgentEnv
+from vector_env import MESSAGE_INDEX, VectorMultiAgentEnv
 
 NUM_ACTIONS = 5
 # The 2 x 2 of the channels: the assignment's three ablations and "distance" (message masked).

@@ -11,17 +11,16 @@ from typing import Any
 
 import numpy as np
 import torch
+from analysis.arrivals import homing_counts
 from analysis.baselines import POLICIES
 from analysis.episodes import recorded_episodes
-from analysis.failures import homing_counts
 from analysis.held_out import held_out_maps
 from analysis.information import BIN_COUNTS, causal_influence, message_bins
 from analysis.interventions import intervene, intervention_table, real_steps
 from analysis.map_sets import HELD_OUT_MAP_SEEDS
 from grid_maps import TARGET
-from models import DISTANCE_INDEX, MESSAGE_INDEX
 from rollout import EVAL_EPSILON, EVAL_SEED, EpisodeResults, run_episodes
-from vector_env import VectorMultiAgentEnv
+from vector_env import DISTANCE_INDEX, MESSAGE_INDEX, VectorMultiAgentEnv
 
 from studies.memory.agents import memory_policy
 

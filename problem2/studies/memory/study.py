@@ -33,7 +33,7 @@ from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 
 import numpy as np
 import torch
-from analysis.failures import homing_shares
+from analysis.arrivals import homing_shares
 from analysis.map_sets import HELD_OUT_MAP_SEEDS
 from analysis.runs import load_policy
 from analysis.stats import seed_paired_differences, seed_statistics
