@@ -18,9 +18,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "problem2"))
-from grid_maps import DEFAULT_MAP_SEED
 from multi_agent_env import MultiAgentEnv
-from vector_env import VectorMultiAgentEnv
+from vector_env import DEFAULT_MAP_SEED, VectorMultiAgentEnv
 
 VECTOR_SIZES = (1, 16, 64, 256, 1024)
 PREDRAWN = 64  # distinct action/message arrays cycled through

@@ -14,9 +14,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import cli  # noqa: F401  (first: checks the packages, standard library only)
-import numpy as np
 from cli import add_solver_arguments, new_parser
+
+import numpy as np
 from environment import GridWorldEnv
 from file_io import (
     atomic_save_figure,

@@ -16,9 +16,9 @@ import argparse
 from collections.abc import Iterable
 from pathlib import Path
 
-import cli  # noqa: F401  (first: checks the packages, standard library only)
-import numpy as np
 from cli import RESULTS_DIR, add_results_dir_argument, new_parser
+
+import numpy as np
 from environment import ACTION_NAMES, MOVES, GridWorldEnv
 from file_io import atomic_save_figure, make_console_safe, remove_stale_temporaries
 from matplotlib.axes import Axes

@@ -33,7 +33,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-import safety  # noqa: F401  (first: checks the packages, stdlib only)
 from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 
 import torch

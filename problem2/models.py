@@ -21,9 +21,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from grid_maps import positive_int
 from torch import nn
-from vector_env import MASKED_INPUTS, OBSERVATION_DIM
+from vector_env import MASKED_INPUTS, OBSERVATION_DIM, positive_int
 
 
 def observation_mask(mode: str, obs_dim: int = OBSERVATION_DIM) -> np.ndarray:

@@ -6,7 +6,7 @@ previous step and the normalised distance between the two agents.
 
 ``MultiAgentEnv`` is the course interface, a thin N = 1 view of
 ``vector_env.VectorMultiAgentEnv`` (the dynamics, observations and rewards); maps are made
-in ``grid_maps.py``.
+in ``vector_env.py``.
 
 Observation of one agent (length ``obs_window² + 2``, 11 for the default window of 3):
   0..8  the patch, row-major (0 free, 1 obstacle, 2 target, -1 off-grid; agents not drawn)
@@ -20,8 +20,7 @@ Positions are (row, col), row 0 at the top.
 from __future__ import annotations
 
 import numpy as np
-from grid_maps import FREE, NUM_ACTIONS, OBSTACLE, TARGET
-from vector_env import VectorMultiAgentEnv
+from vector_env import FREE, NUM_ACTIONS, OBSTACLE, TARGET, VectorMultiAgentEnv
 
 
 def _single_number(value: object, name: str) -> int | float:

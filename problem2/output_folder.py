@@ -191,6 +191,14 @@ def staged_batch(root: Path) -> Iterator[Path]:
         raise
 
 
+def keep_out_of_git(root: Path, default_dir: Path) -> None:
+    """Make a batch folder inside the repository but outside the results folder
+    ``default_dir`` (a custom run, e.g. ``--output_dir my_run``) ignore itself, so that
+    ``git add`` never offers it."""
+    if root.is_relative_to(REPOSITORY) and not root.is_relative_to(default_dir):
+        (root / ".gitignore").write_text("# a custom training run\n*\n", encoding="utf-8")
+
+
 def model_digests(models_dir: Path) -> dict[str, Any] | None:
     """Each run's model checksums as the manifest in ``models_dir`` lists them (None: no
     readable manifest)."""

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from grid_maps import NUM_ACTIONS, positive_int
+from vector_env import NUM_ACTIONS, positive_int
 
 TRANSITION_FIELDS = (
     "state_A",

@@ -8,8 +8,8 @@ interface; no training run uses it).
 from __future__ import annotations
 
 import numpy as np
-from grid_maps import positive_int
 from replay import TRANSITION_FIELDS, ReplayBuffer
+from vector_env import positive_int
 
 __all__ = ["TRANSITION_FIELDS", "PrioritizedReplayBuffer", "ReplayBuffer", "SumTree"]
 

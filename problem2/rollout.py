@@ -13,8 +13,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from grid_maps import positive_int
-from vector_env import VectorMultiAgentEnv, team_rewards
+from vector_env import VectorMultiAgentEnv, positive_int, team_rewards
 
 PolicyFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 

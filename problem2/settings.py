@@ -22,9 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from grid_maps import generate_map, is_integer
 from rollout import SELECT_BY
-from vector_env import REWARD_MODES
+from vector_env import REWARD_MODES, generate_map, is_integer
 
 TRAINABLE_MODES = ("independent", "comm", "distance", "full")  # models.MASKED_INPUTS' order
 MODES = tuple(m for m in TRAINABLE_MODES if m != "distance")  # the assignment's: --mode all

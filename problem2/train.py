@@ -29,7 +29,6 @@ import safety  # first: checks the packages (standard library only)
 import numpy as np
 import output_folder
 import torch
-from grid_maps import NUM_ACTIONS, generate_map
 from models import observation_mask
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED, select_best
 from settings import (
@@ -42,7 +41,7 @@ from settings import (
     validated,
 )
 from trainer import DQNTrainer
-from vector_env import VectorMultiAgentEnv
+from vector_env import NUM_ACTIONS, VectorMultiAgentEnv, generate_map
 
 __all__ = ["EVAL_EPSILON", "MultiAgentTrainer", "TrainConfig", "apply_observation_mask", "main"]
 
@@ -289,6 +288,7 @@ def main(
             with context.Pool(workers, output_folder.start_worker) as pool:
                 finals = pool.starmap(train_one, jobs, chunksize=1)
         best = record_batch(cfg, finals, staging)
+    output_folder.keep_out_of_git(root, DEFAULT_OUTPUT_DIR)
     for final in finals:
         name = f"{final['mode']}_seed{final['seed']}"
         print(

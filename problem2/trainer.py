@@ -26,7 +26,6 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
-from grid_maps import NUM_ACTIONS, TARGET
 from models import AgentDQN, PairedQNetworks, export_policy, observation_mask
 from replay import ReplayBuffer, TransitionBatch, sample_batch
 from rollout import (
@@ -40,7 +39,7 @@ from rollout import (
     validation_summary,
 )
 from settings import TRAINABLE_MODES, TrainConfig
-from vector_env import VectorMultiAgentEnv
+from vector_env import NUM_ACTIONS, TARGET, VectorMultiAgentEnv
 
 LAST_WEIGHTS = "last_weights"  # subfolder of agent_models/: each run's final weights (keep_best)
 

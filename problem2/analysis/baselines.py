@@ -20,19 +20,19 @@ import argparse
 from functools import partial
 from pathlib import Path
 
-import safety  # noqa: F401  (first: checks the packages, stdlib only)
 from safety import use_reproducible_matmul, write_json_atomic
 
 import numpy as np
-from grid_maps import (
+from rollout import EVAL_SEED, PolicyFn, evaluate_policy
+from vector_env import (
     ACTION_DELTAS,
     DEFAULT_MAP_SEED,
     FREE,
+    REWARD_MODES,
     TARGET,
+    VectorMultiAgentEnv,
     generate_map,
 )
-from rollout import EVAL_SEED, PolicyFn, evaluate_policy
-from vector_env import REWARD_MODES, VectorMultiAgentEnv
 
 from analysis.episodes import oracle_policy
 

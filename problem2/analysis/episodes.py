@@ -15,9 +15,8 @@ from typing import Any
 
 import numpy as np
 import torch
-from grid_maps import ACTION_DELTAS, NUM_ACTIONS, OBSTACLE, TARGET
 from rollout import EVAL_SEED, EpisodeResults, PolicyFn, run_episodes, summarize
-from vector_env import VectorMultiAgentEnv
+from vector_env import ACTION_DELTAS, NUM_ACTIONS, OBSTACLE, TARGET, VectorMultiAgentEnv
 
 from analysis.failures import failure_shares
 from analysis.runs import check_policy_outputs

@@ -14,7 +14,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from grid_maps import ACTION_NAMES, generate_map
 from multi_agent_env import MultiAgentEnv, render_state
 from rollout import (
     EVAL_EPSILON,
@@ -24,7 +23,7 @@ from rollout import (
     run_episodes,
     summarize,
 )
-from vector_env import VectorMultiAgentEnv
+from vector_env import ACTION_NAMES, VectorMultiAgentEnv, generate_map
 
 from analysis.episodes import (
     MAX_BATCH,

@@ -10,10 +10,9 @@ from functools import partial
 from typing import Any
 
 import numpy as np
-from grid_maps import generate_map
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED, PolicyFn, summarize
-from vector_env import VectorMultiAgentEnv
+from vector_env import VectorMultiAgentEnv, generate_map
 
 from analysis.baselines import POLICIES
 from analysis.episodes import EvaluationSetting

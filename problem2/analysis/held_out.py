@@ -1,4 +1,4 @@
-"""Success on the 40 held-out maps (``grid_maps.HELD_OUT_MAP_SEEDS``): the one test there.
+"""Success on the 40 held-out maps (``vector_env.HELD_OUT_MAP_SEEDS``): the one test there.
 
 Trained agents (``studies/map_pool_study.py``) and the baseline policies
 (:func:`baselines_on_held_out`, used by the study and by ``analysis/generalization.py``) all
@@ -11,9 +11,8 @@ from collections.abc import Callable
 from functools import lru_cache
 
 import numpy as np
-from grid_maps import generate_map
 from rollout import EVAL_SEED, PolicyFn, evaluate_policy
-from vector_env import VectorMultiAgentEnv
+from vector_env import VectorMultiAgentEnv, generate_map
 
 from analysis.baselines import POLICIES
 from analysis.map_sets import HELD_OUT_MAP_SEEDS

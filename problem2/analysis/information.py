@@ -21,8 +21,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from grid_maps import NUM_ACTIONS, TARGET
 from rollout import EpisodeResults
+from vector_env import NUM_ACTIONS, TARGET
 
 from analysis.episodes import target_distances
 

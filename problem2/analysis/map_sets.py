@@ -14,7 +14,7 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-from grid_maps import DEFAULT_MAP_SEED, generate_map
+from vector_env import DEFAULT_MAP_SEED, generate_map
 
 HELD_OUT_MAP_SEEDS = tuple(range(1000, 1040))  # also the evaluator's held-out maps
 TRAINING_FIRST_SEED = 100_000

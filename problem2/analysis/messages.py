@@ -5,8 +5,8 @@ episodes (``rollout.EpisodeResults`` with trajectories)."""
 from __future__ import annotations
 
 import numpy as np
-from grid_maps import TARGET
 from rollout import EpisodeResults
+from vector_env import TARGET
 
 from analysis.episodes import target_distances
 

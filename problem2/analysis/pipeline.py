@@ -28,7 +28,6 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-import safety  # noqa: F401  (first: checks the packages, stdlib only)
 from safety import make_console_safe, use_reproducible_matmul
 
 import numpy as np

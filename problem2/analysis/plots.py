@@ -15,12 +15,11 @@ from pathlib import Path
 from safety import temporary_path_for
 
 import numpy as np
-from grid_maps import OBSTACLE, TARGET
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator, StrMethodFormatter
 from rollout import EpisodeResults
-from vector_env import MASKED_INPUTS, MESSAGE_INDEX
+from vector_env import MASKED_INPUTS, MESSAGE_INDEX, OBSTACLE, TARGET
 
 from analysis.failures import FAILURE_KINDS, classify_failures
 from analysis.messages import mean_message_per_cell

@@ -28,9 +28,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from grid_maps import DEFAULT_MAP_SEED, check_grid, generate_map
 from rollout import EVAL_EPSILON
-from vector_env import MASKED_INPUTS, OBSERVATION_DIM
+from vector_env import DEFAULT_MAP_SEED, MASKED_INPUTS, OBSERVATION_DIM, check_grid, generate_map
 
 PROBLEM2 = Path(__file__).resolve().parent.parent
 DEFAULT_ROOT = PROBLEM2 / "results"
@@ -51,7 +50,7 @@ DEFAULT_SETTINGS = {
 
 
 def load_map(path: str | Path) -> np.ndarray:
-    """Read a map written by ``grid_maps.save_map``; ValueError (naming the file) if it is
+    """Read a map written by ``batch.plumbing.save_map``; ValueError (naming the file) if it is
     invalid."""
     try:
         content = json.loads(Path(path).read_text())

@@ -14,7 +14,6 @@ import argparse
 import json
 from pathlib import Path
 
-import safety  # noqa: F401  (first: checks the packages, stdlib only)
 from safety import use_reproducible_matmul
 
 from output_folder import MANIFEST

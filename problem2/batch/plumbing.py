@@ -20,7 +20,7 @@ from typing import Any, TextIO
 from safety import write_json_atomic
 
 import numpy as np
-from grid_maps import check_grid
+from vector_env import check_grid
 
 
 def save_map(path: str | Path, grid: np.ndarray) -> None:

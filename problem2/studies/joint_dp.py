@@ -24,8 +24,15 @@ from dataclasses import dataclass
 
 import numpy as np
 from analysis.episodes import target_distances
-from grid_maps import ACTION_DELTAS, NUM_ACTIONS, OBSTACLE, TARGET
-from vector_env import ARRIVAL_REWARD, BOTH_ON_TARGET_REWARD, STEP_REWARD
+from vector_env import (
+    ACTION_DELTAS,
+    ARRIVAL_REWARD,
+    BOTH_ON_TARGET_REWARD,
+    NUM_ACTIONS,
+    OBSTACLE,
+    STEP_REWARD,
+    TARGET,
+)
 
 REWARDS = ("per_step", "arrival")
 GAMMA = 0.99

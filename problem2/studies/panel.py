@@ -50,9 +50,9 @@ from analysis.stats import (
     spearman_interval,
 )
 from batch.plumbing import ProgressLine, run_jobs
-from grid_maps import DEFAULT_MAP_SEED, OBSTACLE, TARGET
 from rollout import EVAL_EPSILON, EVAL_SEED
 from settings import available_cores
+from vector_env import DEFAULT_MAP_SEED, OBSTACLE, TARGET
 
 from studies.multiplicity import panel_effects
 from studies.panel_behaviour import BEHAVIOUR, beacon_behaviour, mode_behaviour, seed_behaviour

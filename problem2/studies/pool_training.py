@@ -18,10 +18,17 @@ from typing import Any
 import numpy as np
 import torch
 from analysis.map_sets import MAX_POOL_SIZE, training_maps, validation_maps
-from grid_maps import FREE, OBSTACLE, OFF_GRID, TARGET, check_grid, reaches_target
 from settings import NON_NEGATIVE, TrainConfig, boolean, int_in, setting
 from trainer import DQNTrainer
-from vector_env import VectorMultiAgentEnv
+from vector_env import (
+    FREE,
+    OBSTACLE,
+    OFF_GRID,
+    TARGET,
+    VectorMultiAgentEnv,
+    check_grid,
+    reaches_target,
+)
 
 
 def check_grid_stack(maps: np.ndarray, name: str = "maps") -> np.ndarray:

@@ -34,9 +34,8 @@ from analysis.episodes import target_distances
 from analysis.evaluator import MultiAgentEvaluator
 from analysis.runs import Experiment, load_model_pair, read_experiment
 from analysis.stats import seed_statistics
-from grid_maps import DEFAULT_MAP_SEED, TARGET, generate_map
 from rollout import EVAL_EPSILON, EVAL_SEED
-from vector_env import VectorMultiAgentEnv
+from vector_env import DEFAULT_MAP_SEED, TARGET, VectorMultiAgentEnv, generate_map
 
 from studies import joint_dp
 from studies.reward_study_outputs import CONDITIONS, format_table, plot_study

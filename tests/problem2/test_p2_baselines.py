@@ -25,9 +25,8 @@ from analysis.episodes import (
     shortest_path_actions,
     target_distances,
 )
-from grid_maps import ACTION_DELTAS, generate_map
 from rollout import evaluate_policy, run_episodes
-from vector_env import VectorMultiAgentEnv
+from vector_env import ACTION_DELTAS, VectorMultiAgentEnv, generate_map
 
 
 @pytest.mark.parametrize("map_seed", MAP_SEEDS)

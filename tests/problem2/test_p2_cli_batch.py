@@ -16,6 +16,7 @@ import sys
 import time
 from pathlib import Path
 
+import output_folder
 import pytest
 from batch.plumbing import ProgressLine, run_jobs
 from output_folder import remove_stale_temporaries
@@ -104,6 +105,19 @@ def test_no_absolute_path_and_no_temporary_left_in_the_outputs(batch: Path) -> N
         if path.suffix in (".json", ".csv"):
             assert base not in path.read_text(encoding="utf-8"), path
     assert sorted(p.name for p in batch.iterdir()) == ["agent_models", "training_logs"]
+
+
+def test_a_custom_run_inside_the_repository_ignores_itself(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``--output_dir my_run`` from problem2/ is never offered to ``git add``; the results
+    folder and folders outside the repository get no .gitignore."""
+    monkeypatch.setattr(output_folder, "REPOSITORY", tmp_path)
+    train.main([*TINY, "--seeds", "1", "--output_dir", str(tmp_path / "my_run")])
+    ignore = (tmp_path / "my_run" / ".gitignore").read_text(encoding="utf-8")
+    assert ignore.splitlines()[-1] == "*"
+    output_folder.keep_out_of_git(tmp_path / "results" / "x", tmp_path / "results")
+    assert not (tmp_path / "results" / "x" / ".gitignore").exists()
 
 
 def test_batch_with_other_settings_is_refused_then_replaced_with_overwrite(

@@ -11,9 +11,8 @@ import pytest
 from analysis.episodes import target_distances
 from analysis.runs import load_map
 from batch.plumbing import save_map
-from grid_maps import generate_map
 from multi_agent_env import MultiAgentEnv
-from vector_env import VectorMultiAgentEnv
+from vector_env import VectorMultiAgentEnv, generate_map
 
 GRID = np.array([[0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 2, 0], [0, 0, 0, 0]])
 

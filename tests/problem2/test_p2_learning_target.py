@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import torch
 from analysis.runs import load_policy
-from grid_maps import TARGET
 from multi_agent_env import MultiAgentEnv
 from replay import sample_batch
 from settings import TrainConfig
+from vector_env import TARGET
 
 from tests.conftest import load_problem_module
 

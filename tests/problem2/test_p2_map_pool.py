@@ -11,12 +11,11 @@ import pytest
 import torch
 from analysis.held_out import held_out_maps
 from analysis.map_sets import HELD_OUT_MAP_SEEDS, training_maps, validation_maps
-from grid_maps import DEFAULT_MAP_SEED, generate_map
 from multi_agent_env import MultiAgentEnv
 from settings import validated
 from studies import map_pool_study
 from studies.pool_training import PoolConfig, PooledVectorEnv, PoolTrainer
-from vector_env import VectorMultiAgentEnv
+from vector_env import DEFAULT_MAP_SEED, VectorMultiAgentEnv, generate_map
 
 MAPS = np.stack([generate_map((10, 10), seed) for seed in (0, 1, 2, 3)])
 

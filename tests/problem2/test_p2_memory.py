@@ -12,7 +12,6 @@ import pytest
 import torch
 from analysis.episodes import recorded_episodes
 from analysis.map_sets import training_maps
-from grid_maps import TARGET
 from multi_agent_env import MultiAgentEnv
 from rollout import run_episodes
 from settings import validated
@@ -26,7 +25,7 @@ from studies.memory.agents import (
 from studies.memory.held_out_tests import memory_cic, memory_states
 from studies.memory.learner import CURRICULUM_END, CurriculumEnv, Levers, RecurrentTrainer
 from studies.pool_training import PoolConfig, PooledVectorEnv
-from vector_env import MESSAGE_INDEX, VectorMultiAgentEnv
+from vector_env import MESSAGE_INDEX, TARGET, VectorMultiAgentEnv
 
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit.\\w+` is deprecated:DeprecationWarning")
 

@@ -19,11 +19,11 @@ from analysis.stats import (
     spearman,
     spearman_interval,
 )
-from grid_maps import FREE, OBSTACLE, TARGET
 from rollout import EpisodeResults
 from studies import panel
 from studies.panel import EFFECTS, PANEL_MAP_SEEDS, landmark_distance
 from studies.panel_behaviour import arrival_measures
+from vector_env import FREE, OBSTACLE, TARGET
 
 from tests.conftest import ROOT, load_problem_module
 

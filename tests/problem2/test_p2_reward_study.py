@@ -16,10 +16,9 @@ from analysis.episodes import recorded_episodes
 from analysis.runs import sha256_of
 from analysis.stats import seed_statistics
 from batch.plumbing import save_map
-from grid_maps import generate_map
 from models import AgentDQN, export_policy
 from studies import joint_dp, reward_study
-from vector_env import VectorMultiAgentEnv
+from vector_env import VectorMultiAgentEnv, generate_map
 
 GAMMA = 0.99
 CORRIDOR_3 = np.array([[0, 2, 0]])  # A | target | B

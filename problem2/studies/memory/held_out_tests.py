@@ -18,9 +18,8 @@ from analysis.held_out import held_out_maps
 from analysis.information import BIN_COUNTS, causal_influence, message_bins
 from analysis.interventions import intervene, intervention_table, real_steps
 from analysis.map_sets import HELD_OUT_MAP_SEEDS
-from grid_maps import TARGET
 from rollout import EVAL_EPSILON, EVAL_SEED, EpisodeResults, run_episodes
-from vector_env import DISTANCE_INDEX, MESSAGE_INDEX, VectorMultiAgentEnv
+from vector_env import DISTANCE_INDEX, MESSAGE_INDEX, TARGET, VectorMultiAgentEnv
 
 from studies.memory.agents import memory_policy
 

@@ -21,12 +21,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from grid_maps import NUM_ACTIONS, check_step
 from models import MessagingQNetwork, exportable_copy, observation_mask, save_scripted
 from torch import nn
 from torch.nn import functional as F
 from trainer import DQNTrainer
-from vector_env import VectorMultiAgentEnv
+from vector_env import NUM_ACTIONS, VectorMultiAgentEnv, check_step
 
 MEMORY_PARTS = ("observation", "move")  # what one step of memory holds
 

@@ -39,11 +39,10 @@ import train
 from analysis.episodes import recorded_episodes
 from analysis.plots import EpisodeTrace, draw_map, draw_paths, episode_trace, save_figure
 from analysis.stats import seed_statistics
-from grid_maps import TARGET
 from matplotlib.figure import Figure
 from rollout import EVAL_SEED, run_episodes
 from settings import TrainConfig, available_cores
-from vector_env import VectorMultiAgentEnv
+from vector_env import TARGET, VectorMultiAgentEnv
 
 from studies.memory.agents import memory_policy
 from studies.one_step.agents import OneStepMemoryTrainer
