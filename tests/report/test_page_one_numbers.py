@@ -154,3 +154,10 @@ def test_the_reward_condition_comes_from_reward_study_json() -> None:
     learned = read(STUDIES / "reward" / "reward_study.json")["learned"]["per_step"]
     rates = [learned[m]["epsilon"]["success_rate"]["mean"] for m in MODES]
     assert f"succeed in only {pct(rates[0])}, {pct(rates[1])} and {pct(rates[2])}" in page_one()
+
+
+def test_the_listeners_long_run_comes_from_beacon_long_json() -> None:
+    cells = read(STUDIES / "beacon_long" / "beacon_long.json")["cells"].values()
+    gap = next(c for c in cells if "full_minus_independent_eps" in c)["full_minus_independent_eps"]
+    low, high = (fixed(100 * x, 1) for x in gap["ci95"])
+    assert f"{signed(gap['mean'])} points [{low}, {high}] on the validation maps" in page_one()
