@@ -50,6 +50,7 @@ OPTIONAL_INPUTS = {
     "one-step-levers": "problem2/results/studies/one_step_unseen_levers/levers.json",
     "beacon-screen": "problem2/results/studies/beacon_around/beacon_around.json",
     "beacon": "problem2/results/studies/beacon/beacon.json",
+    "beacon-long": "problem2/results/studies/beacon_long/beacon_long.json",
 }
 
 

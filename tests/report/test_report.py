@@ -204,7 +204,7 @@ def test_the_report_cites_the_companion_by_section() -> None:
         plain_text(p)
         for p in json.loads(typst.query(str(ROOT / build.MAIN), "par", **build.typst_options()))
     )
-    cited = {v for v in sections.values() if v.startswith("§") and f"Studies {v}" in text}
+    cited = {v for v in sections.values() if v.startswith("§") and f"companion {v}" in text}
     assert len(cited) >= 10
 
 

@@ -29,13 +29,18 @@ GIVENS = {
     "000": "the course's replay default 10 000",
     "11": "the 11 numbers of an observation",
     "0.1": "the -0.1 step reward",
+    "50": "the 50-step episode limit of the assignment's environments (Problem 1's env)",
     "64": "the course's default hidden layer",
     "0.995": "the course skeleton's epsilon decay",
     "99": "the level of the Monte-Carlo interval (summary.json's ci99)",
     "1979": "Holm 1979",
     "1999": "Ng et al. 1999",
     "2011": "Devlin and Kudenko 2011",
-    "2016": "Bellemare et al. 2016, Foerster et al. 2016",
+    "2015": "Mnih et al. 2015",
+    "2016": "Bellemare et al. 2016, Foerster et al. 2016, van Hasselt et al. 2016",
+    "2017": "Florensa et al. 2017",
+    "2018": "Sutton and Barto 2018",
+    "2019": "Eccles et al. 2019, Lowe et al. 2019",
 }
 
 STATEMENTS = ("let", "set", "show", "import", "include")
