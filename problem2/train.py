@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import math
 import multiprocessing
 import shutil
 import sys
@@ -44,6 +45,14 @@ from trainer import DQNTrainer
 from vector_env import NUM_ACTIONS, VectorMultiAgentEnv, generate_map
 
 __all__ = ["EVAL_EPSILON", "MultiAgentTrainer", "TrainConfig", "apply_observation_mask", "main"]
+
+SELECTION_MEASURES = ("success_rate", "mean_steps_to_success", "mean_return")
+MODE_COLOURS = {
+    "independent": "#1b9e77",
+    "comm": "#d95f02",
+    "distance": "#e7298a",
+    "full": "#7570b3",
+}
 
 
 def apply_observation_mask(obs: np.ndarray | torch.Tensor, mode: str) -> np.ndarray | torch.Tensor:
@@ -124,8 +133,8 @@ def train_one(
         reward_mode=cfg.reward_mode,
     )
     trainer = trainer_class(env, run_cfg)
-    start = time.perf_counter()
-    trainer.train(lambda row: report_progress(trainer, row, start))
+    clock = {"start": time.perf_counter(), "shown": -math.inf}  # when the last line was printed
+    trainer.train(lambda row: report_progress(trainer, row, clock))
     selection: dict[str, Any] = {"select_by": cfg.select_by, "validation_seed": VALIDATION_SEED}
     for label, epsilon in (("greedy", 0.0), ("eps", EVAL_EPSILON)):
         summary = trainer.evaluation_summary(cfg.final_eval_episodes, epsilon, VALIDATION_SEED)
@@ -134,19 +143,24 @@ def train_one(
         trainer.logs_dir / f"{trainer.name}_selection.json",
         {"mode": mode, "seed": seed} | selection,
     )
-    return {"mode": mode, "seed": seed, **selection, "seconds": time.perf_counter() - start}
+    return {
+        "mode": mode,
+        "seed": seed,
+        **selection,
+        "seconds": time.perf_counter() - clock["start"],
+    }
 
 
-def report_progress(trainer: DQNTrainer, row: dict[str, Any], start: float) -> None:
+def report_progress(trainer: DQNTrainer, row: dict[str, Any], clock: dict[str, float]) -> None:
     """After each periodic evaluation: the intermediate save (``--save_freq``) and, every ~10 s
     and at the end, one plain line (runs in parallel print their own lines)."""
     cfg = trainer.cfg
     if cfg.save_freq and row["env_steps"] % cfg.save_freq < cfg.eval_interval:
         trainer.save_models()
-    elapsed, done = time.perf_counter() - start, trainer.progress()
-    if done < 1 and elapsed < getattr(trainer, "_shown", 0.0) + 10:
+    elapsed, done = time.perf_counter() - clock["start"], trainer.progress()
+    if done < 1 and elapsed < clock["shown"] + 10:
         return
-    trainer._shown = elapsed
+    clock["shown"] = elapsed
     eta = elapsed * (1 - done) / done if done else float("nan")
     print(
         f"{trainer.name}: {row['env_steps']:,} env steps ({done:.0%}), "
@@ -188,15 +202,6 @@ def record_batch(cfg: TrainConfig, finals: list[dict[str, Any]], staging: Path) 
     manifest = {"format": 1, **cfg.identity(), "runs": runs, "best": best}
     safety.write_json_atomic(models / output_folder.MANIFEST, manifest)
     return best
-
-
-SELECTION_MEASURES = ("success_rate", "mean_steps_to_success", "mean_return")
-MODE_COLOURS = {
-    "independent": "#1b9e77",
-    "comm": "#d95f02",
-    "distance": "#e7298a",
-    "full": "#7570b3",
-}
 
 
 def read_csv(path: Path) -> list[dict[str, float]]:
