@@ -27,6 +27,12 @@ JSON_DIGITS = 10  # significant digits of floats in JSON files: last-bit noise n
 STAGING_PREFIX = ".staging"
 
 
+def shown(path: str | Path) -> str:
+    """``path`` as a console line shows it: relative to the current folder when inside it."""
+    path, here = Path(path).resolve(), Path.cwd().resolve()
+    return str(path.relative_to(here)) if path.is_relative_to(here) else str(path)
+
+
 def make_console_safe() -> None:
     """Let stdout/stderr replace characters the console cannot encode (e.g. cp1252
     on Windows) instead of raising ``UnicodeEncodeError``."""

@@ -23,6 +23,7 @@ from file_io import (
     atomic_save_json,
     make_console_safe,
     remove_stale_temporaries,
+    shown,
     staged_folder,
 )
 from matplotlib.figure import Figure
@@ -160,7 +161,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             f"{r['drift']:6.2f} {r['iterations']:6d} {r['v_start']:9.3f} {r['expected_steps']:9.2f}"
             f" {r['expected_penalty_visits']:12.3f} {len(r['detour_states']):14d}"
         )
-    print(f"results written to {out}")
+    print(f"results written to {shown(out)}")
     return study
 
 

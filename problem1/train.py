@@ -26,6 +26,7 @@ from file_io import (
     make_console_safe,
     remove_stale_temporaries,
     settings_id,
+    shown,
     staged_folder,
 )
 from q_iteration import QIteration
@@ -231,7 +232,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         f"(99 % CI {lo:.4f} .. {hi:.4f}); policies agree: {agree}"
     )
     env.render(values)
-    print(f"results written to {out}")
+    print(f"results written to {shown(out)}")
     return summary
 
 

@@ -20,7 +20,7 @@ from cli import RESULTS_DIR, add_results_dir_argument, new_parser
 
 import numpy as np
 from environment import ACTION_NAMES, MOVES, GridWorldEnv
-from file_io import atomic_save_figure, make_console_safe, remove_stale_temporaries
+from file_io import atomic_save_figure, make_console_safe, remove_stale_temporaries, shown
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure  # figures without pyplot: no GUI backend, no global state
 from matplotlib.patches import Patch, Rectangle
@@ -402,7 +402,7 @@ def main(argv: list[str] | None = None) -> dict[str, Path]:
         raise SystemExit(f"visualize.py: error: {error}") from None
     written = visualize_results(args.results_dir)
     for path in written.values():
-        print(f"wrote {path}")
+        print(f"wrote {shown(path)}")
     return written
 
 

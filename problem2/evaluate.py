@@ -33,7 +33,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+from safety import make_console_safe, shown, use_reproducible_matmul, write_json_atomic
 
 import torch
 from analysis.episodes import SUCCESS, mean_over_seeds
@@ -233,7 +233,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rows, messages = strategy_rows(best_runs, performance)
     plot_trajectories(rows, experiment.grid, output_dir / "trajectories.png", messages)
     print_comparison(performance)
-    print(f"wrote {output_dir}")
+    print(f"wrote {shown(output_dir)}")
     return results
 
 

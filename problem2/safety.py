@@ -74,4 +74,10 @@ def write_json_atomic(path: str | Path, data: Any) -> None:
         temporary.write_text(text, encoding="utf-8", newline="\n")
 
 
+def shown(path: str | Path) -> str:
+    """``path`` as a console line shows it: relative to the current folder when inside it."""
+    path, here = Path(path).resolve(), Path.cwd().resolve()
+    return str(path.relative_to(here)) if path.is_relative_to(here) else str(path)
+
+
 require_packages()

@@ -279,7 +279,7 @@ def main(
         parser.error(f"argument --output_dir: {error}, got {cfg.output_dir!r}")
     runs = [(mode, seed) for mode in cfg.run_modes() for seed in cfg.run_seeds()]
     workers = min(cfg.workers, len(runs))
-    print(f"training {len(runs)} runs into {shown(root)} ({workers} at a time)")
+    print(f"training {len(runs)} runs into {safety.shown(root)} ({workers} at a time)")
     with output_folder.staged_batch(root) as staging:
         models = staging / "agent_models"
         grid = generate_map(cfg.grid_shape(), cfg.map_seed)
@@ -301,13 +301,8 @@ def main(
             f"epsilon 0.05 {final['eps']['success_rate']:.3f}"
             + (" (best)" * (name in best.values()))
         )
-    print(f"wrote {shown(root)} (evaluate.py tests the models on other episodes)")
+    print(f"wrote {safety.shown(root)} (evaluate.py tests the models on other episodes)")
     return finals
-
-
-def shown(path: Path) -> str:
-    """``path`` relative to the current folder when it lies inside it."""
-    return str(path.relative_to(Path.cwd())) if path.is_relative_to(Path.cwd()) else str(path)
 
 
 OUTPUT_RULE = """\

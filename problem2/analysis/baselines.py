@@ -20,7 +20,7 @@ import argparse
 from functools import partial
 from pathlib import Path
 
-from safety import use_reproducible_matmul, write_json_atomic
+from safety import shown, use_reproducible_matmul, write_json_atomic
 
 import numpy as np
 from rollout import EVAL_SEED, PolicyFn, evaluate_policy
@@ -247,7 +247,7 @@ def main(argv: list[str] | None = None) -> None:
     results = evaluate_baselines(args.episodes, map_seeds, seed=args.seed)
     print(format_table(results))
     write_json_atomic(args.output, results)
-    print(f"wrote {args.output}")
+    print(f"wrote {shown(args.output)}")
 
 
 if __name__ == "__main__":

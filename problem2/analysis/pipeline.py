@@ -28,7 +28,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from safety import make_console_safe, use_reproducible_matmul
+from safety import make_console_safe, shown, use_reproducible_matmul
 
 import numpy as np
 import torch
@@ -437,7 +437,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     output_dir = args.output_dir or args.checkpoint.parent / "evaluation_results"
     write_outputs(results, outcomes, output_dir)
     print(format_report(results, brief=True))
-    print(f"wrote {output_dir}")
+    print(f"wrote {shown(output_dir)}")
     return results
 
 
