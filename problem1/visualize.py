@@ -87,7 +87,18 @@ class GridWorldVisualizer:
         for r, c in self.env.obstacles:
             ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, color="black"))
         goal_r, goal_c = self.env.goal_pos
-        ax.add_patch(Rectangle((goal_c - 0.5, goal_r - 0.5), 1, 1, color="#a6d96a"))
+        # the goal holds no value (V = 0, the episode ends there): grey and hatched, off the scale
+        ax.add_patch(
+            Rectangle(
+                (goal_c - 0.5, goal_r - 0.5),
+                1,
+                1,
+                facecolor="0.88",
+                edgecolor="0.55",
+                hatch="//",
+                linewidth=0,
+            )
+        )
         special = [
             ("goal", [self.env.goal_pos]),
             ("penalty", self.env.penalties),
@@ -283,14 +294,17 @@ class GridWorldVisualizer:
             first * gamma ** (sweeps - 1),
             ":",
             color="grey",
-            label=f"contraction bound γ^(k−1)·Δ₁ (γ = {gamma})",
+            label=rf"contraction bound $\gamma^{{k-1}}\,\Delta_1$ ($\gamma$ = {gamma})",
         )
         if epsilon is not None:
             ax.axhline(
-                epsilon, color="black", linewidth=0.8, label=f"stopping threshold ε = {epsilon:g}"
+                epsilon,
+                color="black",
+                linewidth=0.8,
+                label=rf"stopping threshold $\varepsilon$ = {epsilon:g}",
             )
-        ax.set_xlabel("sweep k", fontsize=VALUE_FONT)
-        ax.set_ylabel("sup-norm change  max |x_k − x_(k−1)|", fontsize=VALUE_FONT)
+        ax.set_xlabel(r"sweep $k$", fontsize=VALUE_FONT)
+        ax.set_ylabel(r"sup-norm change  $\max\,|x_k - x_{k-1}|$", fontsize=VALUE_FONT)
         ax.set_title("Convergence of value iteration and Q-iteration", fontsize=10)
         ax.tick_params(labelsize=VALUE_FONT)
         ax.grid(True, which="both", alpha=0.3)

@@ -118,7 +118,7 @@ def test_the_memory_numbers_come_from_memory_panel_json() -> None:
     with_memory = [
         m["conditions"]["eps"]["success"]["independent"]["memory"]["mean"] for m in failing_maps()
     ]
-    assert f"succeed in {pct(min(with_memory), 2)} to {pct(max(with_memory), 2)}" in page_one()
+    assert f"succeed in {pct(min(with_memory), 1)} or more" in page_one()
     effects = [
         m["conditions"]["eps"]["channel_effects_with_memory"][e]["mean"]
         for m in maps
@@ -156,8 +156,18 @@ def test_the_reward_condition_comes_from_reward_study_json() -> None:
     assert f"succeed in only {pct(rates[0])}, {pct(rates[1])} and {pct(rates[2])}" in page_one()
 
 
-def test_the_listeners_long_run_comes_from_beacon_long_json() -> None:
+def test_the_listeners_long_run_stays_off_page_one() -> None:
+    """The long listener run is judged on the validation maps that also chose its checkpoints
+    (a preliminary, selection-biased result): the body reports it, page 1 does not."""
     cells = read(STUDIES / "beacon_long" / "beacon_long.json")["cells"].values()
     gap = next(c for c in cells if "full_minus_independent_eps" in c)["full_minus_independent_eps"]
     low, high = (fixed(100 * x, 1) for x in gap["ci95"])
-    assert f"{signed(gap['mean'])} points [{low}, {high}] on the validation maps" in page_one()
+    assert f"{signed(gap['mean'])} points [{low}, {high}]" not in page_one()
+
+
+def test_the_listeners_change_from_both_sides_comes_from_the_studies() -> None:
+    one_step = read(STUDIES / "one_step_unseen" / "unseen.json")["held_out"]["modes"]
+    listener = read(STUDIES / "beacon" / "beacon.json")["held_out"]["modes"]
+    for mode, verb in (("full", "rises"), ("independent", "falls")):
+        before, after = (pct(found[mode]["eps"]["mean"], 0) for found in (one_step, listener))
+        assert f"{mode} {verb} from {before} to {after}" in page_one()
