@@ -260,3 +260,11 @@ def test_page_one_answers_in_at_most_400_words() -> None:
 
     words = [w for w in text(found[0]).split() if any(c.isalnum() for c in w)]
     assert 150 <= len(words) <= 400
+
+
+def test_the_companions_tables_and_figures_are_numbered_apart_from_the_reports() -> None:
+    """The companion's tables and figures read "Table S5", "Figure S2", so that "companion
+    Table S5" cannot be taken for the report's own Table 5."""
+    entries = json.loads(build.typst_options()["sys_inputs"]["studies-xrefs"]).values()
+    numbered = [v for v in entries if v.startswith(("Table", "Figure"))]
+    assert numbered and all(v.split(" ", 1)[1].startswith("S") for v in numbered)
