@@ -20,7 +20,7 @@ import argparse
 import time
 from typing import Any
 
-from batch.plumbing import make_console_safe, use_reproducible_matmul, write_json_atomic
+from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 
 from studies.memory import study as gru_study
 from studies.one_step.beacon_screen import (
