@@ -10,7 +10,7 @@ REPORT_STAMP  := $(VENV)/.report-installed
 
 .PHONY: all problem1 problem2 studies beyond p2-baselines p2-main p2-studies p2-panel p2-map-pool \
 	p2-stability p2-memory p2-memory-levers p2-memory-panel p2-one-step-unseen p2-one-step-levers \
-	p2-memory-why p2-beacon p2-beacon-long p2-evaluate p2-multiplicity report \
+	p2-memory-why p2-beacon p2-beacon-long p2-beacon-long-study p2-evaluate p2-multiplicity report \
 	test lint \
 	bench clean
 
@@ -68,7 +68,7 @@ studies: p2-main p2-studies p2-evaluate p2-panel p2-memory-panel
 ## the stability study, agents with memory (GRU, and one step) and the levers tried on them (each
 ## writes its own results; `make p2-evaluate` reads only the main experiment and `make studies`').
 beyond: p2-map-pool p2-stability p2-memory p2-memory-levers p2-one-step-unseen p2-one-step-levers \
-	p2-memory-why p2-beacon p2-beacon-long
+	p2-memory-why p2-beacon p2-beacon-long p2-beacon-long-study
 
 p2-studies: $(RUNTIME_STAMP)
 	cd problem2 && for reward in per_step arrival; do \
@@ -133,6 +133,12 @@ p2-beacon: $(RUNTIME_STAMP)
 ## R + H, 2 M steps, training seeds 100-107, validation maps, with the pass rule for a held-out test.
 p2-beacon-long: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.one_step.beacon_long
+
+## Its held-out study (it refuses to run unless the pass rule held): the cell's 4 modes (full and
+## independent on seeds 0-9, comm and distance on 0-4) and the recipe's independent agents at 2 M
+## (seeds 0-4) on the 40 held-out maps; reads p2-beacon's beacon_around.json and beacon.json.
+p2-beacon-long-study: $(RUNTIME_STAMP)
+	cd problem2 && $(PY) -m studies.one_step.beacon_long_study
 
 ## Why one step of memory is enough (reads the memory panel's agents; trains its ablations).
 p2-memory-why: $(RUNTIME_STAMP)

@@ -177,4 +177,5 @@ def test_the_listening_recipes_changes_come_from_the_studies() -> None:
     best = beacon["best_independent"]
     gap = best["full_minus_best_independent"]["eps"]
     low, high = (fixed(100 * x, 1) for x in gap["ci95"])
-    assert f"({pct(best['success']['eps']['mean'])}) is {signed(gap['mean'])} points [{low}, {high}]" in page_one()
+    best_rate = pct(best["success"]["eps"]["mean"])
+    assert f"({best_rate}) is {signed(gap['mean'])} points [{low}, {high}]" in page_one()
