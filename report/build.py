@@ -51,6 +51,7 @@ OPTIONAL_INPUTS = {
     "beacon-screen": "problem2/results/studies/beacon_around/beacon_around.json",
     "beacon": "problem2/results/studies/beacon/beacon.json",
     "beacon-long": "problem2/results/studies/beacon_long/beacon_long.json",
+    "beacon-long-held": "problem2/results/studies/beacon_long/held_out/beacon_long_study.json",
 }
 
 
