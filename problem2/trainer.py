@@ -408,12 +408,17 @@ class DQNTrainer:
         """:func:`rollout.summarize` of the current policy on fixed episodes drawn from
         ``seed``, with the mean return under the assignment's table on the same episodes
         (``mean_table_return``), in environments made once per run (reseeded each time)."""
+        env = self.evaluation_env(num_episodes)
+        results = run_episodes(env, self.policy(epsilon), num_episodes, seed=seed)
+        return validation_summary(results)
+
+    def evaluation_env(self, num_episodes: int) -> VectorMultiAgentEnv:
+        """The environments that play ``num_episodes`` evaluation episodes, made once per run
+        (each evaluation reseeds them)."""
         n_envs = min(num_episodes, 500)  # more copies than this gain no speed, only memory
         if n_envs not in self._evaluation_envs:
             self._evaluation_envs[n_envs] = self.make_vector_env(n_envs, None, validation=True)
-        env = self._evaluation_envs[n_envs]
-        results = run_episodes(env, self.policy(epsilon), num_episodes, seed=seed)
-        return validation_summary(results)
+        return self._evaluation_envs[n_envs]
 
     def evaluate_and_log(self, progress: Callable[[dict[str, Any]], None] | None) -> None:
         """Evaluate on the validation episodes, keep the weights with their results as a

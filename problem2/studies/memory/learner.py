@@ -341,10 +341,7 @@ class RecurrentTrainer(PoolTrainer):
     def evaluation_summary(
         self, num_episodes: int, epsilon: float, seed: int
     ) -> dict[str, float | int | None]:
-        n_envs = min(num_episodes, 500)
-        if n_envs not in self._evaluation_envs:
-            self._evaluation_envs[n_envs] = self.make_vector_env(n_envs, None, validation=True)
-        env = self._evaluation_envs[n_envs]
+        env = self.evaluation_env(num_episodes)
         policy = memory_policy((self.online, self.online), env, epsilon, EVAL_SEED)
         return validation_summary(run_episodes(env, policy, num_episodes, seed=seed))
 
