@@ -81,10 +81,13 @@ def check_output_dir(
     (its manifest's), results without a manifest, or settings other than ``default`` in the
     default results folder ``default_dir``. A batch of identical settings is replaced."""
     if root.exists() and not root.is_dir():
-        raise FolderError(f"must be a folder, not a file ({root})")
+        raise FolderError(f"must be a folder, not a file ({safety.shown(root)})")
     code = code_folder(root)
     if code is not None:
-        where = f"is the code folder {code}" if code == root else f"lies in the code folder {code}"
+        named = code.relative_to(REPOSITORY).as_posix()  # e.g. problem2/analysis
+        where = (
+            f"is the code folder {named}" if code == root else f"lies in the code folder {named}"
+        )
         raise FolderError(
             f"{where}: choose a folder for results, e.g. --output_dir my_run from problem2/ or "
             "a folder under problem2/results/"
@@ -93,12 +96,15 @@ def check_output_dir(
     if others:
         shown = ", ".join(others[:5]) + (", ..." if len(others) > 5 else "")
         raise FolderError(
-            f"holds files that are not a training batch's ({root}: {shown}); a batch goes into "
-            "a new or empty folder or one holding a batch: choose another --output_dir"
+            f"holds files that are not a training batch's ({safety.shown(root)}: {shown}); a batch "
+            "goes into a new or empty folder or one holding a batch: choose another --output_dir"
         )
     if overwrite:
         return
-    remedy = f"choose another --output_dir, or pass --overwrite to replace the batch in {root}"
+    remedy = (
+        "choose another --output_dir, or pass --overwrite to replace the batch in "
+        + safety.shown(root)
+    )
     manifest = root / "agent_models" / MANIFEST
     if manifest.is_file():
         try:
