@@ -5,11 +5,12 @@
     python train.py --help               # every setting, its meaning and its allowed range
 
 Read from :func:`main` down: the flags (``settings.TrainConfig``: each setting's default,
-meaning and check, declared once), the output folder's checks (``safety.py``), then for each
-mode and seed :func:`train_one`: the environment, the learner (``trainer.DQNTrainer``),
-``train()``, the saved models and log, and the validation that picks each mode's best seed;
-then the batch's record (:func:`record_batch`) and its curves. :func:`apply_observation_mask`
-and :class:`MultiAgentTrainer` are the course skeleton's names.
+meaning and check, declared once), the output folder's checks (``output_folder.py``), then
+for each mode and seed :func:`train_one`: the environment, the learner
+(``trainer.DQNTrainer``), ``train()``, the saved models and log, and the validation that
+picks each mode's best seed (:func:`best_runs`); then the curves and the batch's record
+(``output_folder.record_batch``). :func:`apply_observation_mask` and
+:class:`MultiAgentTrainer` are the course skeleton's names.
 """
 
 from __future__ import annotations
