@@ -27,11 +27,10 @@ rewrites the folder whole).
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 from typing import Any
 
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+from safety import write_json_atomic
 
 import numpy as np
 from analysis.stats import seed_statistics
@@ -48,12 +47,13 @@ from studies.one_step.beacon_long import LONG_DIR, LONGER
 from studies.one_step.beacon_screen import (
     best_independent,
     cell_changes,
+    check_workers,
+    checked_held_out_args,
     config,
-    refuse_unlearnable,
 )
 from studies.one_step.beacon_study import STUDY_DIR as SCREEN_STUDY_DIR
 from studies.one_step.beacon_study import drawn_episode, train_and_test
-from studies.staging import staged_output, write_timing
+from studies.staging import staged_output, study_main, write_timing
 
 STUDY_DIR = LONG_DIR / "held_out"
 CHANGES = cell_changes("RHD") | {"total_steps": LONGER}  # every mode: D acts only on distance
@@ -317,43 +317,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add("--total_steps", type=int, default=None, help="smoke runs only: env steps per run")
     add("--episodes_per_map", type=int, default=None, help="smoke runs only: test episodes per map")
     args = parser.parse_args(argv)
-    if not 1 <= args.workers <= 64:
-        parser.error(f"--workers must be in 1..64, got {args.workers}")
-    smoke = {
-        k: v for k in ("total_steps", "episodes_per_map") if (v := getattr(args, k)) is not None
-    }
-    for name, value in smoke.items():
-        if value < 1:
-            parser.error(f"--{name} must be an integer >= 1, got {value}")
-    if smoke and args.output_dir.resolve() == STUDY_DIR.resolve():
-        parser.error(
-            "--total_steps and --episodes_per_map are for smoke runs: give another --output_dir"
-        )
-    args.episodes = smoke.pop("episodes_per_map", unseen.EPISODES_PER_MAP)
-    if "total_steps" in smoke:
-        smoke |= {"eval_interval": max(1, smoke["total_steps"] // 2), "eval_episodes": 20}
-    refuse_unlearnable(parser, smoke)
-    args.smoke = smoke
-    return args
+    check_workers(parser, args)
+    return checked_held_out_args(parser, args, STUDY_DIR)
 
 
 def main(argv: list[str] | None = None) -> dict:
-    use_reproducible_matmul()  # before the first matrix product
-    make_console_safe()
-    args = parse_args(argv)
-    path = args.output_dir / "beacon_long_study.json"
-    if args.plot_only:
-        results = unseen.read_json(path)
-        if results is None:
-            raise SystemExit(f"no {path.name} in {args.output_dir.resolve()}: run the study first")
-        plot(args.output_dir / "beacon_long_study.png", results)
-        print(f"wrote {args.output_dir / 'beacon_long_study.png'}")
-        return results
-    start = time.perf_counter()
-    results = run_study(args)
-    print(format_study(results))
-    print(f"wrote {args.output_dir} ({time.perf_counter() - start:.0f} s)")
-    return results
+    return study_main(argv, parse_args, run_study, format_study, plot=("beacon_long_study", plot))
 
 
 if __name__ == "__main__":
