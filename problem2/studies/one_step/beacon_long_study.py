@@ -35,7 +35,6 @@ from safety import write_json_atomic
 import numpy as np
 from analysis.stats import seed_statistics
 from batch.plumbing import ProgressLine, run_jobs
-from matplotlib.figure import Figure
 from settings import available_cores
 
 from studies import map_pool_study
@@ -219,8 +218,6 @@ def plot(path: Path, results: dict) -> None:
     """Held-out success at ε = 0.05 per mode: the recipe (1 M), the screen's winner (1 M) and
     this cell (2 M); explorers as lines (the recipe's independent agents at 2 M are in the
     JSON and the printed table: a fourth bar does not fit the report's width)."""
-    fig = Figure(figsize=(map_pool_study.FIGURE_WIDTH, 3.2), layout="constrained")
-    ax = fig.subplots()
     arms = [
         (
             "recipe",
@@ -234,12 +231,7 @@ def plot(path: Path, results: dict) -> None:
         ),
         ("R+H+D 2M", "#55a868", {m: s["eps"] for m, s in results["held_out"]["modes"].items()}),
     ]
-    map_pool_study.draw_success_bars(ax, list(unseen.MODES), arms)
-    no_memory = gru_study.read_no_memory()
-    if no_memory:
-        map_pool_study.draw_reference_lines(ax, no_memory["held_out"]["heuristics"])
-    label = f"success on held-out maps (ε = {CONDITIONS['eps']:g})"
-    map_pool_study.save_bars(fig, ax, label, path)
+    unseen.plot_held_out_bars(path, arms)
 
 
 def run_study(args: argparse.Namespace) -> dict:

@@ -37,7 +37,6 @@ from analysis.map_sets import HELD_OUT_MAP_SEEDS
 from analysis.runs import load_policy
 from analysis.stats import seed_statistics
 from batch.plumbing import ProgressLine, run_jobs
-from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED
 from settings import available_cores
@@ -157,8 +156,6 @@ def summarise(
 def plot(path: Path, results: dict) -> None:
     """Held-out success at ε = 0.05 per mode: one step of memory with the recipe, with the
     screen's options, GRU memory; the explorers as lines."""
-    fig = Figure(figsize=(map_pool_study.FIGURE_WIDTH, 3.2), layout="constrained")
-    ax = fig.subplots()
     recipe = results["one_step_recipe_held_out"]
     gru = unseen.read_json(gru_study.STUDY_DIR / "memory.json")
     arms = [
@@ -174,13 +171,7 @@ def plot(path: Path, results: dict) -> None:
             {} if gru is None else {m: s["eps"] for m, s in gru["held_out"]["modes"].items()},
         ),
     ]
-    map_pool_study.draw_success_bars(ax, list(MODES), arms)
-    ax.set_xticks(range(len(MODES)), list(MODES))
-    no_memory = gru_study.read_no_memory()
-    if no_memory:
-        map_pool_study.draw_reference_lines(ax, no_memory["held_out"]["heuristics"])
-    label = f"success on held-out maps (ε = {CONDITIONS['eps']:g})"
-    map_pool_study.save_bars(fig, ax, label, path)
+    unseen.plot_held_out_bars(path, arms)
 
 
 def run_study(args: argparse.Namespace) -> dict:

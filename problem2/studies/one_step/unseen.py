@@ -155,8 +155,6 @@ def summarise(runs: list[dict], episodes: int) -> dict[str, Any]:
 def plot(path: Path, results: dict) -> None:
     """Held-out success at ε = 0.05 per mode: no memory (the map-pool study), one step of
     memory, GRU memory (the memory study); the explorers as lines."""
-    fig = Figure(figsize=(map_pool_study.FIGURE_WIDTH, 3.2), layout="constrained")
-    ax = fig.subplots()
     no_memory = gru_study.read_no_memory()
     earlier = no_memory["held_out"]["modes"] if no_memory else {}
     gru = results.get("gru_held_out") or {}
@@ -165,8 +163,16 @@ def plot(path: Path, results: dict) -> None:
         ("one step", "#dd8452", {m: s["eps"] for m, s in results["held_out"]["modes"].items()}),
         ("GRU", "#4c72b0", {m: s["eps"] for m, s in gru.items()}),
     ]
+    plot_held_out_bars(path, arms)
+
+
+def plot_held_out_bars(path: Path, arms: list[tuple[str, str, dict]]) -> None:
+    """Held-out success at ε = 0.05 per mode, a bar per arm (label, colour, mode -> its ``eps``
+    statistics), the explorers of the map-pool study as lines; written to ``path``."""
+    fig = Figure(figsize=(map_pool_study.FIGURE_WIDTH, 3.2), layout="constrained")
+    ax = fig.subplots()
     map_pool_study.draw_success_bars(ax, list(MODES), arms)
-    ax.set_xticks(range(len(MODES)), list(MODES))
+    no_memory = gru_study.read_no_memory()
     if no_memory:
         map_pool_study.draw_reference_lines(ax, no_memory["held_out"]["heuristics"])
     label = f"success on held-out maps (ε = {CONDITIONS['eps']:g})"
