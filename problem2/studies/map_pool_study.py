@@ -313,9 +313,24 @@ def format_table(results: dict) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     """The study's command-line flags."""
+    description = __doc__.split("\n\n")[0]
+    return study_parser(description, RECIPE, MODES, STUDY_DIR, "map_pool", with_map_pool=True)
+
+
+def study_parser(
+    description: str,
+    recipe: dict[str, Any],
+    modes: tuple[str, ...],
+    default_dir: Path,
+    stem: str,
+    with_map_pool: bool = False,
+) -> argparse.ArgumentParser:
+    """The flags of a study on the map pool (this one, the memory study): defaults from
+    ``recipe``; ``--map_pool`` if ``with_map_pool``; ``--plot_only`` redraws ``<stem>.png``
+    from ``<stem>.json``."""
     parser = argparse.ArgumentParser(
         allow_abbrev=False,
-        description=__doc__.split("\n\n")[0],
+        description=description,
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     add = parser.add_argument
@@ -323,24 +338,25 @@ def build_parser() -> argparse.ArgumentParser:
         "--total_steps",
         "--total-steps",
         type=int,
-        default=RECIPE["total_steps"],
+        default=recipe["total_steps"],
         help="environment steps per run",
     )
     add(
         "--num_seeds",
         "--num-seeds",
         type=int,
-        default=len(RECIPE["seeds"]),
+        default=len(recipe["seeds"]),
         help="training seeds per mode (seeds 0, 1, ...)",
     )
-    add("--mode", default="all", help="all, or a comma-separated list of " + ", ".join(MODES))
-    add(
-        "--map_pool",
-        "--map-pool",
-        type=int,
-        default=RECIPE["map_pool"],
-        help=f"training maps (1..{MAX_POOL_SIZE})",
-    )
+    add("--mode", default="all", help="all, or a comma-separated list of " + ", ".join(modes))
+    if with_map_pool:
+        add(
+            "--map_pool",
+            "--map-pool",
+            type=int,
+            default=recipe["map_pool"],
+            help=f"training maps (1..{MAX_POOL_SIZE})",
+        )
     add(
         "--episodes_per_map",
         "--episodes-per-map",
@@ -353,14 +369,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--output_dir",
         "--output-dir",
         type=Path,
-        default=STUDY_DIR,
+        default=default_dir,
         help="folder written (relative: to the current folder)",
     )
     add(
         "--plot_only",
         "--plot-only",
         action="store_true",
-        help="only redraw map_pool.png from the map_pool.json in --output_dir (no training)",
+        help=f"only redraw {stem}.png from the {stem}.json in --output_dir (no training)",
     )
     return parser
 

@@ -41,7 +41,7 @@ from batch.plumbing import ProgressLine, run_jobs
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED
-from settings import SettingError, available_cores, check_value, int_in, usage, validated
+from settings import SettingError, check_value, int_in, usage, validated
 
 from studies import map_pool_study
 from studies.memory.agents import MEMORY_MODES
@@ -252,50 +252,10 @@ def format_table(results: dict) -> str:
 
 
 def parse_args(argv: list[str] | None) -> tuple[PoolConfig, argparse.Namespace]:
-    parser = argparse.ArgumentParser(
-        allow_abbrev=False,
-        description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    parser = map_pool_study.study_parser(
+        __doc__.split("\n\n")[0], RECIPE, MEMORY_MODES, STUDY_DIR, "memory"
     )
     add = parser.add_argument
-    add(
-        "--total_steps",
-        "--total-steps",
-        type=int,
-        default=RECIPE["total_steps"],
-        help="environment steps per run",
-    )
-    add(
-        "--num_seeds",
-        "--num-seeds",
-        type=int,
-        default=len(RECIPE["seeds"]),
-        help="training seeds per mode (seeds 0, 1, ...)",
-    )
-    add(
-        "--mode", default="all", help="all, or a comma-separated list of " + ", ".join(MEMORY_MODES)
-    )
-    add(
-        "--episodes_per_map",
-        "--episodes-per-map",
-        type=int,
-        default=500,
-        help="test episodes per held-out map and condition (1..100000)",
-    )
-    add("--workers", type=int, default=available_cores(), help="parallel training processes")
-    add(
-        "--output_dir",
-        "--output-dir",
-        type=Path,
-        default=STUDY_DIR,
-        help="folder written (relative: to the current folder)",
-    )
-    add(
-        "--plot_only",
-        "--plot-only",
-        action="store_true",
-        help="only redraw memory.png from the memory.json in --output_dir (no training)",
-    )
     add(
         "--summarise_only",
         "--summarise-only",
