@@ -56,8 +56,9 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED
-from settings import MODES, SettingError, available_cores, check_value, int_in, usage, validated
+from settings import MODES, SettingError, check_value, int_in, usage, validated
 
+from studies import pool_training
 from studies.pool_training import PoolConfig, PoolTrainer
 from studies.staging import (
     best_env_steps,
@@ -314,71 +315,9 @@ def format_table(results: dict) -> str:
 def build_parser() -> argparse.ArgumentParser:
     """The study's command-line flags."""
     description = __doc__.split("\n\n")[0]
-    return study_parser(description, RECIPE, MODES, STUDY_DIR, "map_pool", with_map_pool=True)
-
-
-def study_parser(
-    description: str,
-    recipe: dict[str, Any],
-    modes: tuple[str, ...],
-    default_dir: Path,
-    stem: str,
-    with_map_pool: bool = False,
-) -> argparse.ArgumentParser:
-    """The flags of a study on the map pool (this one, the memory study): defaults from
-    ``recipe``; ``--map_pool`` if ``with_map_pool``; ``--plot_only`` redraws ``<stem>.png``
-    from ``<stem>.json``."""
-    parser = argparse.ArgumentParser(
-        allow_abbrev=False,
-        description=description,
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    return pool_training.study_parser(
+        description, RECIPE, MODES, STUDY_DIR, "map_pool", with_map_pool=True
     )
-    add = parser.add_argument
-    add(
-        "--total_steps",
-        "--total-steps",
-        type=int,
-        default=recipe["total_steps"],
-        help="environment steps per run",
-    )
-    add(
-        "--num_seeds",
-        "--num-seeds",
-        type=int,
-        default=len(recipe["seeds"]),
-        help="training seeds per mode (seeds 0, 1, ...)",
-    )
-    add("--mode", default="all", help="all, or a comma-separated list of " + ", ".join(modes))
-    if with_map_pool:
-        add(
-            "--map_pool",
-            "--map-pool",
-            type=int,
-            default=recipe["map_pool"],
-            help=f"training maps (1..{MAX_POOL_SIZE})",
-        )
-    add(
-        "--episodes_per_map",
-        "--episodes-per-map",
-        type=int,
-        default=500,
-        help="test episodes per held-out map and condition (1..100000)",
-    )
-    add("--workers", type=int, default=available_cores(), help="parallel training processes")
-    add(
-        "--output_dir",
-        "--output-dir",
-        type=Path,
-        default=default_dir,
-        help="folder written (relative: to the current folder)",
-    )
-    add(
-        "--plot_only",
-        "--plot-only",
-        action="store_true",
-        help=f"only redraw {stem}.png from the {stem}.json in --output_dir (no training)",
-    )
-    return parser
 
 
 def parse_args(argv: list[str] | None) -> tuple[PoolConfig, argparse.Namespace]:

@@ -43,7 +43,7 @@ from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED
 from settings import SettingError, check_value, int_in, usage, validated
 
-from studies import map_pool_study
+from studies import map_pool_study, pool_training
 from studies.memory.agents import MEMORY_MODES
 from studies.memory.held_out_tests import (
     CHANNELS,
@@ -252,7 +252,7 @@ def format_table(results: dict) -> str:
 
 
 def parse_args(argv: list[str] | None) -> tuple[PoolConfig, argparse.Namespace]:
-    parser = map_pool_study.study_parser(
+    parser = pool_training.study_parser(
         __doc__.split("\n\n")[0], RECIPE, MEMORY_MODES, STUDY_DIR, "memory"
     )
     add = parser.add_argument
