@@ -299,14 +299,21 @@ def run_study(cfg: PoolConfig, episodes: int, output_dir: Path) -> dict:
     return results
 
 
-def format_table(results: dict) -> str:
-    lines = [f"{'held-out success':<16} {'greedy (95% CI)':>22} {'eps 0.05 (95% CI)':>22}"]
+def held_out_lines(results: dict, width: int) -> list[str]:
+    """A header and a line per mode (names padded to ``width``): held-out success, greedy and
+    at epsilon 0.05, with 95 % CIs."""
+    lines = [f"{'held-out success':<{width}} {'greedy (95% CI)':>22} {'eps 0.05 (95% CI)':>22}"]
     for mode, entry in results["held_out"]["modes"].items():
         cells = [
             f"{s['mean']:.3f} [{s['ci95'][0]:.3f}, {s['ci95'][1]:.3f}]"
             for s in (entry["greedy"], entry["eps"])
         ]
-        lines.append(f"{mode:<16} {cells[0]:>22} {cells[1]:>22}")
+        lines.append(f"{mode:<{width}} {cells[0]:>22} {cells[1]:>22}")
+    return lines
+
+
+def format_table(results: dict) -> str:
+    lines = held_out_lines(results, 16)
     for name, stats in results["held_out"]["heuristics"].items():
         lines.append(f"{name:<16} {stats['mean']:>9.3f} (CI over maps)")
     return "\n".join(lines)

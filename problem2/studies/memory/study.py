@@ -238,13 +238,7 @@ def resummarise(cfg: PoolConfig, episodes: int, output_dir: Path) -> dict:
 
 
 def format_table(results: dict) -> str:
-    lines = [f"{'held-out success':<14} {'greedy (95% CI)':>22} {'eps 0.05 (95% CI)':>22}"]
-    for mode, entry in results["held_out"]["modes"].items():
-        cells = [
-            f"{s['mean']:.3f} [{s['ci95'][0]:.3f}, {s['ci95'][1]:.3f}]"
-            for s in (entry["greedy"], entry["eps"])
-        ]
-        lines.append(f"{mode:<14} {cells[0]:>22} {cells[1]:>22}")
+    lines = map_pool_study.held_out_lines(results, 14)
     for name, entry in results["held_out"]["differences"].items():
         s = entry["eps"]
         lines.append(f"{name:<22} eps {s['mean']:+.3f} [{s['ci95'][0]:+.3f}, {s['ci95'][1]:+.3f}]")
