@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+from safety import make_console_safe, write_json_atomic
 
 from analysis.console import repository_path
 from output_folder import remove_stale_temporaries
@@ -101,12 +101,11 @@ def study_main(
     report: Callable[[dict], str],
     plot: tuple[str, Callable[[Path, dict], None]] | None = None,
 ) -> dict:
-    """A study's ``main``: reproducible matrix products, a console that prints '?' for what it
-    cannot show, the checked flags, then ``run(args)``; prints ``report(results)`` and the
-    folder written (from the repository's root) with the time taken. With ``plot=(stem,
-    draw)``, ``--plot_only`` instead redraws ``<stem>.png`` from ``<stem>.json`` in
-    ``--output_dir`` (no runs)."""
-    use_reproducible_matmul()  # before the first matrix product
+    """A study's ``main`` after its first step (``use_reproducible_matmul()``): a console that
+    prints '?' for what it cannot show, the checked flags, then ``run(args)``; prints
+    ``report(results)`` and the folder written (from the repository's root) with the time
+    taken. With ``plot=(stem, draw)``, ``--plot_only`` instead redraws ``<stem>.png`` from
+    ``<stem>.json`` in ``--output_dir`` (no runs)."""
     make_console_safe()
     args = parse_args(argv)
     if plot is not None and args.plot_only:

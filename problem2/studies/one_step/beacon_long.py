@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from safety import write_json_atomic
+from safety import use_reproducible_matmul, write_json_atomic
 
 from studies.memory import study as gru_study
 from studies.one_step.beacon_screen import (
@@ -116,6 +116,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> dict:
+    use_reproducible_matmul()  # before the first matrix product
     return study_main(argv, parse_args, run_long, format_long)
 
 

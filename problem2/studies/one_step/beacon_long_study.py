@@ -30,7 +30,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from safety import write_json_atomic
+from safety import use_reproducible_matmul, write_json_atomic
 
 import numpy as np
 from analysis.stats import seed_statistics
@@ -314,6 +314,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> dict:
+    use_reproducible_matmul()  # before the first matrix product
     return study_main(argv, parse_args, run_study, format_study, plot=("beacon_long_study", plot))
 
 

@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from safety import write_json_atomic
+from safety import use_reproducible_matmul, write_json_atomic
 
 import torch
 from analysis.stats import seed_statistics
@@ -297,6 +297,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> dict:
+    use_reproducible_matmul()  # before the first matrix product
     return study_main(argv, parse_args, run_screen, format_screen)
 
 

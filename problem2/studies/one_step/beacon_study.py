@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from safety import write_json_atomic
+from safety import use_reproducible_matmul, write_json_atomic
 
 import numpy as np
 import torch
@@ -246,6 +246,7 @@ def format_study(results: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict:
+    use_reproducible_matmul()  # before the first matrix product
     return study_main(argv, parse_args, run_study, format_study, plot=("beacon", plot))
 
 

@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from safety import write_json_atomic
+from safety import use_reproducible_matmul, write_json_atomic
 
 import torch
 from analysis.runs import load_policy
@@ -309,6 +309,7 @@ def format_results(results: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict:
+    use_reproducible_matmul()  # before the first matrix product
     return study_main(argv, parse_args, run, format_results)
 
 
