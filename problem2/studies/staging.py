@@ -19,7 +19,7 @@ from typing import Any
 from safety import make_console_safe, write_json_atomic
 
 from analysis.console import repository_path
-from output_folder import remove_stale_temporaries
+from output_folder import PROBLEM2, code_folder, remove_stale_temporaries
 from settings import check_setting
 from trainer import DQNTrainer
 
@@ -29,8 +29,14 @@ def staged_output(
     output_dir: Path, subfolders: tuple[str, ...] = ("agent_models", "training_logs")
 ) -> Iterator[Path]:
     """Yield an empty staging folder (with ``subfolders``) beside ``output_dir``; on success
-    it replaces ``output_dir``, on error it is removed."""
+    it replaces ``output_dir``, on error it is removed. A folder that is or holds the
+    project's code is refused first (it would be replaced whole)."""
     output_dir = Path(output_dir).resolve()
+    if PROBLEM2.is_relative_to(output_dir) or code_folder(output_dir) is not None:
+        raise SystemExit(
+            f"{repository_path(output_dir)} holds the project's code and would be replaced "
+            "whole: give another --output_dir"
+        )
     output_dir.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_temporaries(output_dir.parent)
     staging = output_dir.parent / f".{output_dir.name}.staging.{os.getpid()}"
