@@ -11,7 +11,7 @@
   its message and, hearing it, homes in on the partner by the distance it observes.
 
 ``python baselines.py`` evaluates them on the default map (seed 641) and map seeds 0–4,
-prints a table and writes ``results/evaluation_results/baselines.json``.
+prints a one-line summary and writes ``results/evaluation_results/baselines.json``.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import argparse
 from functools import partial
 from pathlib import Path
 
-from safety import shown, use_reproducible_matmul, write_json_atomic
+from safety import use_reproducible_matmul, write_json_atomic
 
 import numpy as np
 from rollout import EVAL_SEED, PolicyFn, evaluate_policy
@@ -34,6 +34,7 @@ from vector_env import (
     generate_map,
 )
 
+from analysis.console import repository_path
 from analysis.episodes import oracle_policy
 
 RESULTS_DIR = Path(__file__).resolve().parent.parent / "results" / "evaluation_results"
@@ -188,22 +189,14 @@ def evaluate_baselines(
     return {"protocol": protocol, "maps": maps}
 
 
-def format_table(results: dict) -> str:
-    header = (
-        f"{'map seed':>8} {'target':>8} {'policy':>14} {'success':>8} {'steps':>6} "
-        f"{'return (arrival)':>17} {'return (per_step)':>18}"
+def summary(results: dict) -> str:
+    """One line: each policy's success on the first map, and what was evaluated."""
+    map_seed, entry = next(iter(results["maps"].items()))
+    rates = ", ".join(f"{name} {entry[name]['success_rate']:.1%}" for name in POLICIES)
+    return (
+        f"baselines on {len(results['maps'])} maps ({results['protocol']['episodes']} episodes "
+        f"each); success on map {map_seed}: {rates}"
     )
-    lines = [header, "-" * len(header)]
-    for map_seed, entry in results["maps"].items():
-        for name in POLICIES:
-            row = entry[name]
-            steps = row["mean_steps_to_success"]
-            lines.append(
-                f"{map_seed:>8} {str(tuple(entry['target'])):>8} {name:>14} "
-                f"{row['success_rate']:>8.1%} {'-' if steps is None else f'{steps:.2f}':>6} "
-                f"{row['mean_return_arrival']:>17.2f} {row['mean_return_per_step']:>18.2f}"
-            )
-    return "\n".join(lines)
 
 
 def int_list(text: str) -> list[int]:
@@ -245,9 +238,9 @@ def main(argv: list[str] | None = None) -> None:
     if args.seed < 0:
         parser.error(f"--seed must be a non-negative integer, got {args.seed}")
     results = evaluate_baselines(args.episodes, map_seeds, seed=args.seed)
-    print(format_table(results))
     write_json_atomic(args.output, results)
-    print(f"wrote {shown(args.output)}")
+    print(summary(results))
+    print(f"wrote {repository_path(args.output)}")
 
 
 if __name__ == "__main__":

@@ -278,9 +278,10 @@ def message_verdict(causal: dict[str, dict], epsilon: float) -> tuple[bool, str]
     return used, f"{head} " + "; ".join(parts) + "."
 
 
-def legacy_message_test(message_test: dict, epsilon: float) -> dict[str, Any]:
-    """The message test under its earlier names (shuffled = same_step, zeroed = constant_0),
-    read by the report."""
+def causal_message_test(message_test: dict, epsilon: float) -> dict[str, Any]:
+    """The message test as ``communication_analysis.json``'s ``causal`` entry, which the
+    comparison table's message section reads: real, shuffled (= ``same_step``) and zeroed
+    (= ``constant_0``) success, real minus each, and the verdict."""
     causal: dict[str, Any] = {}
     for condition in ("greedy", "eps"):
         success, delta = (

@@ -28,7 +28,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from safety import make_console_safe, shown, use_reproducible_matmul
+from safety import make_console_safe, use_reproducible_matmul
 
 import numpy as np
 import torch
@@ -36,6 +36,7 @@ from rollout import EVAL_SEED, EpisodeResults
 
 from analysis.arrivals import DECOMPOSITION, failure_decomposition
 from analysis.baselines import POLICIES
+from analysis.console import generalization_summary, repository_path, success_summary
 from analysis.episodes import SUCCESS, episode_summary
 from analysis.evaluator import MultiAgentEvaluator, experiment_evaluator
 from analysis.failures import FAILURE_DEFINITIONS, FAILURE_KINDS
@@ -46,9 +47,9 @@ from analysis.interventions import (
     CHANNEL_MODES,
     INTERVENTIONS,
     VERDICTS,
+    causal_message_test,
     channel_verdict,
     intervention_test,
-    legacy_message_test,
     mean_received,
     raising,
 )
@@ -58,7 +59,6 @@ from analysis.messages import (
     message_distribution,
 )
 from analysis.outputs import write_outputs
-from analysis.report import format_report
 from analysis.runs import (
     DEFAULT_CHECKPOINT,
     Experiment,
@@ -269,7 +269,7 @@ def evaluate_mode(
     if tests:
         communication["interventions"] = tests
     if "message" in tests:
-        communication["causal"] = legacy_message_test(tests["message"], epsilon)
+        communication["causal"] = causal_message_test(tests["message"], epsilon)
     successes = {
         name: np.stack([runs[name].successes for runs in seed_runs.values()]) for name in CONDITIONS
     }
@@ -428,16 +428,20 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         for experiment in experiments:
             if experiment.manifest is None:
                 print(
-                    f"note: no manifest.json in {experiment.models_dir}: evaluating the "
-                    "model files found there"
+                    f"note: no manifest.json in {repository_path(experiment.models_dir)}: "
+                    "evaluating the model files found there"
                 )
         results, outcomes = evaluate_all(experiments, args)
     except (FileNotFoundError, ValueError) as error:
         raise SystemExit(f"python -m analysis.pipeline: error: {error}") from error
     output_dir = args.output_dir or args.checkpoint.parent / "evaluation_results"
-    write_outputs(results, outcomes, output_dir)
-    print(format_report(results, brief=True))
-    print(f"wrote {shown(output_dir)}")
+    written = write_outputs(results, outcomes, output_dir)
+    for line in success_summary(results["performance"]):
+        print(line)
+    for line in generalization_summary(results.get("generalization")):
+        print(line)
+    print(f"wrote {len(written)} files to {repository_path(output_dir)}")
+    print(f"tables: {repository_path(output_dir / 'comparison_table.md')}")
     return results
 
 

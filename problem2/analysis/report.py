@@ -355,23 +355,16 @@ def held_out_section(generalization: dict | None) -> list[str]:
     ]
 
 
-def format_report(results: dict[str, Any], brief: bool = False) -> str:
-    """Markdown of every section; ``brief``: the success table, the message verdicts and the
-    generalisation summary only (for the console)."""
+def format_report(results: dict[str, Any]) -> str:
+    """Markdown of every section (``comparison_table.md``)."""
     performance = results["performance"]
     sections = [success_section(performance), differences_section(performance)]
-    if not brief:
-        sections += [
-            failure_section(performance),
-            decomposition_section(performance),
-        ]
+    sections += [failure_section(performance), decomposition_section(performance)]
     if "communication" in results:
         sections.append(message_section(results["communication"]))
-        if not brief:
-            sections.append(intervention_section(results["communication"]))
-            sections.append(measures_section(results["communication"]))
+        sections.append(intervention_section(results["communication"]))
+        sections.append(measures_section(results["communication"]))
     sections.append(generalization_section(results.get("generalization")))
-    if not brief:
-        sections.append(held_out_section(results.get("generalization")))
-    title = [] if brief else ["# Problem 2: evaluation of the trained agents", ""]
+    sections.append(held_out_section(results.get("generalization")))
+    title = ["# Problem 2: evaluation of the trained agents", ""]
     return "\n".join(title + [line for section in sections for line in section])

@@ -4,14 +4,10 @@ are in ``safety.py``; the policy files in ``models.py``.)"""
 
 from __future__ import annotations
 
-import contextlib
 import multiprocessing as mp
-import os
 import queue
 import shutil
-import signal
 import sys
-import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -20,6 +16,7 @@ from typing import Any, TextIO
 from safety import write_json_atomic
 
 import numpy as np
+from output_folder import start_worker
 from vector_env import check_grid
 
 
@@ -32,18 +29,12 @@ def save_map(path: str | Path, grid: np.ndarray) -> None:
 _progress_queue: Any = None  # set in each worker by _start_worker
 
 
-def _start_worker(parent_pipe: Any, progress_queue: Any) -> None:
-    """Pool initializer: ignore Ctrl-C; exit as soon as the parent's end of the pipe closes."""
+def _start_worker(progress_queue: Any) -> None:
+    """Pool initializer: ``output_folder.start_worker``'s (Ctrl-C is the parent's, and
+    the worker exits once its parent is gone), and the queue that feeds the progress line."""
     global _progress_queue
     _progress_queue = progress_queue
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-    def exit_when_parent_is_gone() -> None:
-        with contextlib.suppress(EOFError, OSError):
-            parent_pipe.recv()  # the parent never sends: this returns only by EOFError
-        os._exit(1)
-
-    threading.Thread(target=exit_when_parent_is_gone, daemon=True).start()
+    start_worker()
 
 
 def _run_job(job: Callable[..., Any], args: tuple) -> Any:
@@ -65,9 +56,8 @@ def run_jobs(
         progress.close()
         return results
     context = mp.get_context("spawn")
-    receive_end, send_end = context.Pipe(duplex=False)
     progress_queue = context.Queue()
-    pool = context.Pool(workers, _start_worker, (receive_end, progress_queue))
+    pool = context.Pool(workers, _start_worker, (progress_queue,))
     try:
         pending = [pool.apply_async(_run_job, (job, args)) for args in arguments]
         while not all(p.ready() for p in pending):
@@ -81,7 +71,6 @@ def run_jobs(
     finally:
         pool.terminate()
         pool.join()
-        send_end.close()
         progress_queue.close()
     progress.runs_done = len(arguments)
     progress.close()

@@ -56,8 +56,9 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED, VALIDATION_SEED
-from settings import MODES, SettingError, available_cores, check_value, int_in, usage, validated
+from settings import MODES, SettingError, check_value, int_in, usage, validated
 
+from studies import pool_training
 from studies.pool_training import PoolConfig, PoolTrainer
 from studies.staging import (
     best_env_steps,
@@ -298,14 +299,21 @@ def run_study(cfg: PoolConfig, episodes: int, output_dir: Path) -> dict:
     return results
 
 
-def format_table(results: dict) -> str:
-    lines = [f"{'held-out success':<16} {'greedy (95% CI)':>22} {'eps 0.05 (95% CI)':>22}"]
+def held_out_lines(results: dict, width: int) -> list[str]:
+    """A header and a line per mode (names padded to ``width``): held-out success, greedy and
+    at epsilon 0.05, with 95 % CIs."""
+    lines = [f"{'held-out success':<{width}} {'greedy (95% CI)':>22} {'eps 0.05 (95% CI)':>22}"]
     for mode, entry in results["held_out"]["modes"].items():
         cells = [
             f"{s['mean']:.3f} [{s['ci95'][0]:.3f}, {s['ci95'][1]:.3f}]"
             for s in (entry["greedy"], entry["eps"])
         ]
-        lines.append(f"{mode:<16} {cells[0]:>22} {cells[1]:>22}")
+        lines.append(f"{mode:<{width}} {cells[0]:>22} {cells[1]:>22}")
+    return lines
+
+
+def format_table(results: dict) -> str:
+    lines = held_out_lines(results, 16)
     for name, stats in results["held_out"]["heuristics"].items():
         lines.append(f"{name:<16} {stats['mean']:>9.3f} (CI over maps)")
     return "\n".join(lines)
@@ -313,56 +321,10 @@ def format_table(results: dict) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     """The study's command-line flags."""
-    parser = argparse.ArgumentParser(
-        allow_abbrev=False,
-        description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    description = __doc__.split("\n\n")[0]
+    return pool_training.study_parser(
+        description, RECIPE, MODES, STUDY_DIR, "map_pool", with_map_pool=True
     )
-    add = parser.add_argument
-    add(
-        "--total_steps",
-        "--total-steps",
-        type=int,
-        default=RECIPE["total_steps"],
-        help="environment steps per run",
-    )
-    add(
-        "--num_seeds",
-        "--num-seeds",
-        type=int,
-        default=len(RECIPE["seeds"]),
-        help="training seeds per mode (seeds 0, 1, ...)",
-    )
-    add("--mode", default="all", help="all, or a comma-separated list of " + ", ".join(MODES))
-    add(
-        "--map_pool",
-        "--map-pool",
-        type=int,
-        default=RECIPE["map_pool"],
-        help=f"training maps (1..{MAX_POOL_SIZE})",
-    )
-    add(
-        "--episodes_per_map",
-        "--episodes-per-map",
-        type=int,
-        default=500,
-        help="test episodes per held-out map and condition (1..100000)",
-    )
-    add("--workers", type=int, default=available_cores(), help="parallel training processes")
-    add(
-        "--output_dir",
-        "--output-dir",
-        type=Path,
-        default=STUDY_DIR,
-        help="folder written (relative: to the current folder)",
-    )
-    add(
-        "--plot_only",
-        "--plot-only",
-        action="store_true",
-        help="only redraw map_pool.png from the map_pool.json in --output_dir (no training)",
-    )
-    return parser
 
 
 def parse_args(argv: list[str] | None) -> tuple[PoolConfig, argparse.Namespace]:

@@ -8,17 +8,20 @@ and memory studies use, none of them part of the assignment's recipe.
 * :class:`PoolTrainer`: the core learner (:class:`~trainer.DQNTrainer`) on such
   environments (validated on other generated maps), with the bonuses added to the learning
   reward and, with ``share_weights``, one set of weights for both agents.
+* :func:`study_parser`: the command-line flags those two studies share.
 """
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 from analysis.map_sets import MAX_POOL_SIZE, training_maps, validation_maps
-from settings import NON_NEGATIVE, TrainConfig, boolean, int_in, setting
+from settings import NON_NEGATIVE, TrainConfig, available_cores, boolean, int_in, setting
 from trainer import DQNTrainer
 from vector_env import (
     FREE,
@@ -246,3 +249,67 @@ class PoolTrainer(DQNTrainer):
             for p in self.online_parameters:  # each (2, ...), agent axis first
                 if p.grad is not None:  # None: a message head no loss reaches (independent)
                     p.grad.copy_(p.grad.sum(dim=0, keepdim=True).expand_as(p.grad))
+
+
+def study_parser(
+    description: str,
+    recipe: dict[str, Any],
+    modes: tuple[str, ...],
+    default_dir: Path,
+    stem: str,
+    with_map_pool: bool = False,
+) -> argparse.ArgumentParser:
+    """The flags of a study on the map pool (``map_pool_study``, the memory study): defaults from
+    ``recipe``; ``--map_pool`` if ``with_map_pool``; ``--plot_only`` redraws ``<stem>.png``
+    from ``<stem>.json``."""
+    parser = argparse.ArgumentParser(
+        allow_abbrev=False,
+        description=description,
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    add = parser.add_argument
+    add(
+        "--total_steps",
+        "--total-steps",
+        type=int,
+        default=recipe["total_steps"],
+        help="environment steps per run",
+    )
+    add(
+        "--num_seeds",
+        "--num-seeds",
+        type=int,
+        default=len(recipe["seeds"]),
+        help="training seeds per mode (seeds 0, 1, ...)",
+    )
+    add("--mode", default="all", help="all, or a comma-separated list of " + ", ".join(modes))
+    if with_map_pool:
+        add(
+            "--map_pool",
+            "--map-pool",
+            type=int,
+            default=recipe["map_pool"],
+            help=f"training maps (1..{MAX_POOL_SIZE})",
+        )
+    add(
+        "--episodes_per_map",
+        "--episodes-per-map",
+        type=int,
+        default=500,
+        help="test episodes per held-out map and condition (1..100000)",
+    )
+    add("--workers", type=int, default=available_cores(), help="parallel training processes")
+    add(
+        "--output_dir",
+        "--output-dir",
+        type=Path,
+        default=default_dir,
+        help="folder written (relative: to the current folder)",
+    )
+    add(
+        "--plot_only",
+        "--plot-only",
+        action="store_true",
+        help=f"only redraw {stem}.png from the {stem}.json in --output_dir (no training)",
+    )
+    return parser

@@ -2,21 +2,24 @@
 folder beside it, which replaces the folder only when the block succeeds: an interrupted
 study leaves the previous results, never half of new ones), the timing file, a study
 flag checked by a TrainConfig field's rule, a run trained into a folder with its progress
-reported, and the checkpoint a trainer selected."""
+reported, the checkpoint a trainer selected, and the steps of a study's ``main``."""
 
 from __future__ import annotations
 
+import argparse
+import json
 import os
 import shutil
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from safety import write_json_atomic
+from safety import make_console_safe, write_json_atomic
 
-from output_folder import remove_stale_temporaries
+from analysis.console import repository_path
+from output_folder import PROBLEM2, code_folder, remove_stale_temporaries
 from settings import check_setting
 from trainer import DQNTrainer
 
@@ -26,8 +29,14 @@ def staged_output(
     output_dir: Path, subfolders: tuple[str, ...] = ("agent_models", "training_logs")
 ) -> Iterator[Path]:
     """Yield an empty staging folder (with ``subfolders``) beside ``output_dir``; on success
-    it replaces ``output_dir``, on error it is removed."""
+    it replaces ``output_dir``, on error it is removed. A folder that is or holds the
+    project's code is refused first (it would be replaced whole)."""
     output_dir = Path(output_dir).resolve()
+    if PROBLEM2.is_relative_to(output_dir) or code_folder(output_dir) is not None:
+        raise SystemExit(
+            f"{repository_path(output_dir)} holds the project's code and would be replaced "
+            "whole: give another --output_dir"
+        )
     output_dir.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_temporaries(output_dir.parent)
     staging = output_dir.parent / f".{output_dir.name}.staging.{os.getpid()}"
@@ -89,3 +98,37 @@ def train_into(
             progress.put((name, row, time.perf_counter() - start))
 
     return trainer.train(report)
+
+
+def study_main(
+    argv: list[str] | None,
+    parse_args: Callable[[list[str] | None], argparse.Namespace],
+    run: Callable[[argparse.Namespace], dict],
+    report: Callable[[dict], str],
+    plot: tuple[str, Callable[[Path, dict], None]] | None = None,
+) -> dict:
+    """A study's ``main`` after its first step (``use_reproducible_matmul()``): a console that
+    prints '?' for what it cannot show, the checked flags, then ``run(args)``; prints
+    ``report(results)`` and the folder written (from the repository's root) with the time
+    taken. With ``plot=(stem, draw)``, ``--plot_only`` instead redraws ``<stem>.png`` from
+    ``<stem>.json`` in ``--output_dir`` (no runs)."""
+    make_console_safe()
+    args = parse_args(argv)
+    if plot is not None and args.plot_only:
+        return redraw(args.output_dir, *plot)
+    start = time.perf_counter()
+    results = run(args)
+    print(report(results))
+    print(f"wrote {repository_path(args.output_dir)} ({time.perf_counter() - start:.0f} s)")
+    return results
+
+
+def redraw(folder: Path, stem: str, draw: Callable[[Path, dict], None]) -> dict:
+    """Draw ``<stem>.png`` in ``folder`` from its ``<stem>.json``; exit if there is none."""
+    path = folder / f"{stem}.json"
+    if not path.is_file():
+        raise SystemExit(f"no {path.name} in {folder.resolve()}: run the study first")
+    results = json.loads(path.read_text(encoding="utf-8"))
+    draw(folder / f"{stem}.png", results)
+    print(f"wrote {repository_path(folder / f'{stem}.png')}")
+    return results

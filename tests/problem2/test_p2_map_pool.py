@@ -15,6 +15,7 @@ from multi_agent_env import MultiAgentEnv
 from settings import validated
 from studies import map_pool_study
 from studies.pool_training import PoolConfig, PooledVectorEnv, PoolTrainer
+from studies.staging import staged_output
 from vector_env import DEFAULT_MAP_SEED, VectorMultiAgentEnv, generate_map
 
 MAPS = np.stack([generate_map((10, 10), seed) for seed in (0, 1, 2, 3)])
@@ -305,6 +306,17 @@ def test_study_output_dir_must_not_be_a_file(
     with pytest.raises(SystemExit):
         map_pool_study.parse_args(["--output_dir", str(file)])
     assert "argument --output_dir: must be a folder, not a file" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("folder", ["problem2", ".", "problem2/analysis"])
+def test_a_study_never_replaces_a_folder_of_code(folder: str) -> None:
+    """A study's output folder is replaced whole: one that is or holds code is refused
+    before any staging folder is made."""
+    root = Path(__file__).resolve().parents[2]
+    output_dir = (root / folder).resolve()
+    with pytest.raises(SystemExit, match="holds the project's code"), staged_output(output_dir):
+        raise AssertionError("staged")
+    assert not list(output_dir.parent.glob(f".{output_dir.name}.staging.*"))
 
 
 def test_study_flags_become_the_recipe_with_seeds_from_zero(tmp_path: Path) -> None:

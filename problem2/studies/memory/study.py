@@ -41,9 +41,9 @@ from batch.plumbing import ProgressLine, run_jobs
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_SEED
-from settings import SettingError, available_cores, check_value, int_in, usage, validated
+from settings import SettingError, check_value, int_in, usage, validated
 
-from studies import map_pool_study
+from studies import map_pool_study, pool_training
 from studies.memory.agents import MEMORY_MODES
 from studies.memory.held_out_tests import (
     CHANNELS,
@@ -238,13 +238,7 @@ def resummarise(cfg: PoolConfig, episodes: int, output_dir: Path) -> dict:
 
 
 def format_table(results: dict) -> str:
-    lines = [f"{'held-out success':<14} {'greedy (95% CI)':>22} {'eps 0.05 (95% CI)':>22}"]
-    for mode, entry in results["held_out"]["modes"].items():
-        cells = [
-            f"{s['mean']:.3f} [{s['ci95'][0]:.3f}, {s['ci95'][1]:.3f}]"
-            for s in (entry["greedy"], entry["eps"])
-        ]
-        lines.append(f"{mode:<14} {cells[0]:>22} {cells[1]:>22}")
+    lines = map_pool_study.held_out_lines(results, 14)
     for name, entry in results["held_out"]["differences"].items():
         s = entry["eps"]
         lines.append(f"{name:<22} eps {s['mean']:+.3f} [{s['ci95'][0]:+.3f}, {s['ci95'][1]:+.3f}]")
@@ -252,50 +246,10 @@ def format_table(results: dict) -> str:
 
 
 def parse_args(argv: list[str] | None) -> tuple[PoolConfig, argparse.Namespace]:
-    parser = argparse.ArgumentParser(
-        allow_abbrev=False,
-        description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    parser = pool_training.study_parser(
+        __doc__.split("\n\n")[0], RECIPE, MEMORY_MODES, STUDY_DIR, "memory"
     )
     add = parser.add_argument
-    add(
-        "--total_steps",
-        "--total-steps",
-        type=int,
-        default=RECIPE["total_steps"],
-        help="environment steps per run",
-    )
-    add(
-        "--num_seeds",
-        "--num-seeds",
-        type=int,
-        default=len(RECIPE["seeds"]),
-        help="training seeds per mode (seeds 0, 1, ...)",
-    )
-    add(
-        "--mode", default="all", help="all, or a comma-separated list of " + ", ".join(MEMORY_MODES)
-    )
-    add(
-        "--episodes_per_map",
-        "--episodes-per-map",
-        type=int,
-        default=500,
-        help="test episodes per held-out map and condition (1..100000)",
-    )
-    add("--workers", type=int, default=available_cores(), help="parallel training processes")
-    add(
-        "--output_dir",
-        "--output-dir",
-        type=Path,
-        default=STUDY_DIR,
-        help="folder written (relative: to the current folder)",
-    )
-    add(
-        "--plot_only",
-        "--plot-only",
-        action="store_true",
-        help="only redraw memory.png from the memory.json in --output_dir (no training)",
-    )
     add(
         "--summarise_only",
         "--summarise-only",

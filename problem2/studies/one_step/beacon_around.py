@@ -16,11 +16,10 @@ best on the validation maps at ε = 0.05; ``beacon_study`` tests it on the held-
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 from typing import Any
 
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+from safety import use_reproducible_matmul, write_json_atomic
 
 from studies.memory import study as gru_study
 from studies.one_step import unseen
@@ -35,7 +34,7 @@ from studies.one_step.beacon_screen import (
     train_cells,
     winner,
 )
-from studies.staging import staged_output
+from studies.staging import staged_output, study_main
 
 AROUND_DIR = gru_study.RESULTS / "beacon_around"
 HOMING = (1.0, 4.0)  # the first stage's κ is 2
@@ -111,13 +110,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> dict:
     use_reproducible_matmul()  # before the first matrix product
-    make_console_safe()
-    args = parse_args(argv)
-    start = time.perf_counter()
-    results = run_stage(args)
-    print(format_stage(results))
-    print(f"wrote {args.output_dir} ({time.perf_counter() - start:.0f} s)")
-    return results
+    return study_main(argv, parse_args, run_stage, format_stage)
 
 
 if __name__ == "__main__":

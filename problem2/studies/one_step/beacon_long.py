@@ -17,10 +17,9 @@ stated before the runs) decides whether the held-out study of the cell runs. Out
 from __future__ import annotations
 
 import argparse
-import time
 from typing import Any
 
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+from safety import use_reproducible_matmul, write_json_atomic
 
 from studies.memory import study as gru_study
 from studies.one_step.beacon_screen import (
@@ -32,7 +31,7 @@ from studies.one_step.beacon_screen import (
     stage_parser,
     train_cells,
 )
-from studies.staging import staged_output
+from studies.staging import staged_output, study_main
 
 LONG_DIR = gru_study.RESULTS / "beacon_long"
 SEEDS = tuple(range(100, 108))  # training seeds: never reported as results
@@ -118,13 +117,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> dict:
     use_reproducible_matmul()  # before the first matrix product
-    make_console_safe()
-    args = parse_args(argv)
-    start = time.perf_counter()
-    results = run_long(args)
-    print(format_long(results))
-    print(f"wrote {args.output_dir} ({time.perf_counter() - start:.0f} s)")
-    return results
+    return study_main(argv, parse_args, run_long, format_long)
 
 
 if __name__ == "__main__":

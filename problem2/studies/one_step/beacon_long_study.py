@@ -27,16 +27,14 @@ rewrites the folder whole).
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 from typing import Any
 
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+from safety import use_reproducible_matmul, write_json_atomic
 
 import numpy as np
 from analysis.stats import seed_statistics
 from batch.plumbing import ProgressLine, run_jobs
-from matplotlib.figure import Figure
 from settings import available_cores
 
 from studies import map_pool_study
@@ -48,12 +46,13 @@ from studies.one_step.beacon_long import LONG_DIR, LONGER
 from studies.one_step.beacon_screen import (
     best_independent,
     cell_changes,
+    check_workers,
+    checked_held_out_args,
     config,
-    refuse_unlearnable,
 )
 from studies.one_step.beacon_study import STUDY_DIR as SCREEN_STUDY_DIR
 from studies.one_step.beacon_study import drawn_episode, train_and_test
-from studies.staging import staged_output, write_timing
+from studies.staging import staged_output, study_main, write_timing
 
 STUDY_DIR = LONG_DIR / "held_out"
 CHANGES = cell_changes("RHD") | {"total_steps": LONGER}  # every mode: D acts only on distance
@@ -219,8 +218,6 @@ def plot(path: Path, results: dict) -> None:
     """Held-out success at ε = 0.05 per mode: the recipe (1 M), the screen's winner (1 M) and
     this cell (2 M); explorers as lines (the recipe's independent agents at 2 M are in the
     JSON and the printed table: a fourth bar does not fit the report's width)."""
-    fig = Figure(figsize=(map_pool_study.FIGURE_WIDTH, 3.2), layout="constrained")
-    ax = fig.subplots()
     arms = [
         (
             "recipe",
@@ -234,12 +231,7 @@ def plot(path: Path, results: dict) -> None:
         ),
         ("R+H+D 2M", "#55a868", {m: s["eps"] for m, s in results["held_out"]["modes"].items()}),
     ]
-    map_pool_study.draw_success_bars(ax, list(unseen.MODES), arms)
-    no_memory = gru_study.read_no_memory()
-    if no_memory:
-        map_pool_study.draw_reference_lines(ax, no_memory["held_out"]["heuristics"])
-    label = f"success on held-out maps (ε = {CONDITIONS['eps']:g})"
-    map_pool_study.save_bars(fig, ax, label, path)
+    unseen.plot_held_out_bars(path, arms)
 
 
 def run_study(args: argparse.Namespace) -> dict:
@@ -317,43 +309,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add("--total_steps", type=int, default=None, help="smoke runs only: env steps per run")
     add("--episodes_per_map", type=int, default=None, help="smoke runs only: test episodes per map")
     args = parser.parse_args(argv)
-    if not 1 <= args.workers <= 64:
-        parser.error(f"--workers must be in 1..64, got {args.workers}")
-    smoke = {
-        k: v for k in ("total_steps", "episodes_per_map") if (v := getattr(args, k)) is not None
-    }
-    for name, value in smoke.items():
-        if value < 1:
-            parser.error(f"--{name} must be an integer >= 1, got {value}")
-    if smoke and args.output_dir.resolve() == STUDY_DIR.resolve():
-        parser.error(
-            "--total_steps and --episodes_per_map are for smoke runs: give another --output_dir"
-        )
-    args.episodes = smoke.pop("episodes_per_map", unseen.EPISODES_PER_MAP)
-    if "total_steps" in smoke:
-        smoke |= {"eval_interval": max(1, smoke["total_steps"] // 2), "eval_episodes": 20}
-    refuse_unlearnable(parser, smoke)
-    args.smoke = smoke
-    return args
+    check_workers(parser, args)
+    return checked_held_out_args(parser, args, STUDY_DIR)
 
 
 def main(argv: list[str] | None = None) -> dict:
     use_reproducible_matmul()  # before the first matrix product
-    make_console_safe()
-    args = parse_args(argv)
-    path = args.output_dir / "beacon_long_study.json"
-    if args.plot_only:
-        results = unseen.read_json(path)
-        if results is None:
-            raise SystemExit(f"no {path.name} in {args.output_dir.resolve()}: run the study first")
-        plot(args.output_dir / "beacon_long_study.png", results)
-        print(f"wrote {args.output_dir / 'beacon_long_study.png'}")
-        return results
-    start = time.perf_counter()
-    results = run_study(args)
-    print(format_study(results))
-    print(f"wrote {args.output_dir} ({time.perf_counter() - start:.0f} s)")
-    return results
+    return study_main(argv, parse_args, run_study, format_study, plot=("beacon_long_study", plot))
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+from safety import use_reproducible_matmul, write_json_atomic
 
 import torch
 from analysis.stats import seed_statistics
@@ -31,8 +31,15 @@ from settings import SettingError, available_cores, usage, validated
 
 from studies import map_pool_study
 from studies.memory import study as gru_study
+from studies.one_step import unseen
 from studies.one_step.beacon import BeaconConfig, BeaconTrainer
-from studies.staging import best_env_steps, best_selection, staged_output, train_into
+from studies.staging import (
+    best_env_steps,
+    best_selection,
+    staged_output,
+    study_main,
+    train_into,
+)
 
 SCREEN_DIR = gru_study.RESULTS / "beacon_screen"
 TRAINING_SEEDS = (100, 101, 102)  # never reported as results
@@ -228,8 +235,7 @@ def checked_stage_args(
 ) -> argparse.Namespace:
     """``args`` checked, with ``args.smoke`` the settings of a smoke run (``--total_steps``,
     refused into ``default_dir``) or empty."""
-    if not 1 <= args.workers <= 64:
-        parser.error(f"--workers must be in 1..64, got {args.workers}")
+    check_workers(parser, args)
     args.smoke = {}
     if args.total_steps is not None:
         if args.output_dir.resolve() == default_dir.resolve():
@@ -243,6 +249,36 @@ def checked_stage_args(
             "eval_episodes": 20,
         }
     refuse_unlearnable(parser, args.smoke)
+    return args
+
+
+def check_workers(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """A usage error unless ``--workers`` is in 1..64."""
+    if not 1 <= args.workers <= 64:
+        parser.error(f"--workers must be in 1..64, got {args.workers}")
+
+
+def checked_held_out_args(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, default_dir: Path
+) -> argparse.Namespace:
+    """A held-out study's ``args`` with ``args.episodes`` (test episodes per map) and
+    ``args.smoke`` (the settings of a smoke run: ``--total_steps``, ``--episodes_per_map``,
+    refused into ``default_dir``) set; ``--workers`` is checked by the caller."""
+    smoke = {
+        k: v for k in ("total_steps", "episodes_per_map") if (v := getattr(args, k)) is not None
+    }
+    for name, value in smoke.items():
+        if value < 1:
+            parser.error(f"--{name} must be an integer >= 1, got {value}")
+    if smoke and args.output_dir.resolve() == default_dir.resolve():
+        parser.error(
+            "--total_steps and --episodes_per_map are for smoke runs: give another --output_dir"
+        )
+    args.episodes = smoke.pop("episodes_per_map", unseen.EPISODES_PER_MAP)
+    if "total_steps" in smoke:
+        smoke |= {"eval_interval": max(1, smoke["total_steps"] // 2), "eval_episodes": 20}
+    refuse_unlearnable(parser, smoke)
+    args.smoke = smoke
     return args
 
 
@@ -262,13 +298,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> dict:
     use_reproducible_matmul()  # before the first matrix product
-    make_console_safe()
-    args = parse_args(argv)
-    start = time.perf_counter()
-    results = run_screen(args)
-    print(format_screen(results))
-    print(f"wrote {args.output_dir} ({time.perf_counter() - start:.0f} s)")
-    return results
+    return study_main(argv, parse_args, run_screen, format_screen)
 
 
 if __name__ == "__main__":

@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+from safety import use_reproducible_matmul, write_json_atomic
 
 import numpy as np
 import torch
@@ -37,7 +37,6 @@ from analysis.map_sets import HELD_OUT_MAP_SEEDS
 from analysis.runs import load_policy
 from analysis.stats import seed_statistics
 from batch.plumbing import ProgressLine, run_jobs
-from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
 from rollout import EVAL_EPSILON, EVAL_SEED
 from settings import available_cores
@@ -50,8 +49,13 @@ from studies.memory.held_out_tests import CONDITIONS, beacon_homing
 from studies.one_step import unseen
 from studies.one_step.beacon import BeaconTrainer
 from studies.one_step.beacon_around import AROUND_DIR
-from studies.one_step.beacon_screen import best_independent, config, refuse_unlearnable
-from studies.staging import staged_output, train_into, write_timing
+from studies.one_step.beacon_screen import (
+    best_independent,
+    check_workers,
+    checked_held_out_args,
+    config,
+)
+from studies.staging import staged_output, study_main, train_into, write_timing
 
 STUDY_DIR = gru_study.RESULTS / "beacon"
 MODES = unseen.MODES
@@ -152,8 +156,6 @@ def summarise(
 def plot(path: Path, results: dict) -> None:
     """Held-out success at ε = 0.05 per mode: one step of memory with the recipe, with the
     screen's options, GRU memory; the explorers as lines."""
-    fig = Figure(figsize=(map_pool_study.FIGURE_WIDTH, 3.2), layout="constrained")
-    ax = fig.subplots()
     recipe = results["one_step_recipe_held_out"]
     gru = unseen.read_json(gru_study.STUDY_DIR / "memory.json")
     arms = [
@@ -169,13 +171,7 @@ def plot(path: Path, results: dict) -> None:
             {} if gru is None else {m: s["eps"] for m, s in gru["held_out"]["modes"].items()},
         ),
     ]
-    map_pool_study.draw_success_bars(ax, list(MODES), arms)
-    ax.set_xticks(range(len(MODES)), list(MODES))
-    no_memory = gru_study.read_no_memory()
-    if no_memory:
-        map_pool_study.draw_reference_lines(ax, no_memory["held_out"]["heuristics"])
-    label = f"success on held-out maps (ε = {CONDITIONS['eps']:g})"
-    map_pool_study.save_bars(fig, ax, label, path)
+    unseen.plot_held_out_bars(path, arms)
 
 
 def run_study(args: argparse.Namespace) -> dict:
@@ -232,52 +228,26 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add("--total_steps", type=int, default=None, help="smoke runs only: env steps per run")
     add("--episodes_per_map", type=int, default=None, help="smoke runs only: test episodes per map")
     args = parser.parse_args(argv)
-    if not 1 <= args.workers <= 64:
-        parser.error(f"--workers must be in 1..64, got {args.workers}")
+    check_workers(parser, args)
     if not 1 <= args.num_seeds <= len(SEEDS):
         parser.error(f"--num_seeds must be in 1..{len(SEEDS)}, got {args.num_seeds}")
-    smoke = {
-        k: v for k in ("total_steps", "episodes_per_map") if (v := getattr(args, k)) is not None
-    }
-    for name, value in smoke.items():
-        if value < 1:
-            parser.error(f"--{name} must be an integer >= 1, got {value}")
-    args.episodes = smoke.pop("episodes_per_map", unseen.EPISODES_PER_MAP)
-    if (
-        smoke or args.episodes_per_map is not None
-    ) and args.output_dir.resolve() == STUDY_DIR.resolve():
-        parser.error(
-            "--total_steps and --episodes_per_map are for smoke runs: give another --output_dir"
-        )
-    if "total_steps" in smoke:
-        smoke |= {"eval_interval": max(1, smoke["total_steps"] // 2), "eval_episodes": 20}
-    refuse_unlearnable(parser, smoke)
-    args.smoke = smoke
-    return args
+    return checked_held_out_args(parser, args, STUDY_DIR)
+
+
+def format_study(results: dict) -> str:
+    """The held-out table, then full minus the best independent cell at epsilon."""
+    best = results["best_independent"]
+    b = best["full_minus_best_independent"]["eps"]
+    low, high = b["ci95"]
+    return (
+        f"{gru_study.format_table(results)}\n"
+        f"full - best independent ({best['cell']}): eps {b['mean']:+.3f} [{low:+.3f}, {high:+.3f}]"
+    )
 
 
 def main(argv: list[str] | None = None) -> dict:
     use_reproducible_matmul()  # before the first matrix product
-    make_console_safe()
-    args = parse_args(argv)
-    if args.plot_only:
-        results = unseen.read_json(args.output_dir / "beacon.json")
-        if results is None:
-            raise SystemExit(f"no beacon.json in {args.output_dir.resolve()}: run the study first")
-        plot(args.output_dir / "beacon.png", results)
-        print(f"wrote {args.output_dir / 'beacon.png'}")
-        return results
-    start = time.perf_counter()
-    results = run_study(args)
-    print(gru_study.format_table(results))
-    b = results["best_independent"]["full_minus_best_independent"]["eps"]
-    best = results["best_independent"]
-    low, high = b["ci95"]
-    print(
-        f"full - best independent ({best['cell']}): eps {b['mean']:+.3f} [{low:+.3f}, {high:+.3f}]"
-    )
-    print(f"wrote {args.output_dir} ({time.perf_counter() - start:.0f} s)")
-    return results
+    return study_main(argv, parse_args, run_study, format_study, plot=("beacon", plot))
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
+from safety import use_reproducible_matmul, write_json_atomic
 
 import torch
 from analysis.runs import load_policy
@@ -43,7 +43,14 @@ from studies.memory import study as gru_study
 from studies.memory.held_out_tests import CONDITIONS, beacon_homing, held_out_results
 from studies.one_step.agents import OneStepMemoryEnv, OneStepMemoryTrainer
 from studies.pool_training import CurriculumEnv, PoolConfig, PoolTrainer
-from studies.staging import best_env_steps, best_selection, staged_output, train_into, write_timing
+from studies.staging import (
+    best_env_steps,
+    best_selection,
+    staged_output,
+    study_main,
+    train_into,
+    write_timing,
+)
 
 RESULTS = gru_study.RESULTS
 STUDY_DIR = RESULTS / "one_step_unseen"
@@ -148,8 +155,6 @@ def summarise(runs: list[dict], episodes: int) -> dict[str, Any]:
 def plot(path: Path, results: dict) -> None:
     """Held-out success at ε = 0.05 per mode: no memory (the map-pool study), one step of
     memory, GRU memory (the memory study); the explorers as lines."""
-    fig = Figure(figsize=(map_pool_study.FIGURE_WIDTH, 3.2), layout="constrained")
-    ax = fig.subplots()
     no_memory = gru_study.read_no_memory()
     earlier = no_memory["held_out"]["modes"] if no_memory else {}
     gru = results.get("gru_held_out") or {}
@@ -158,8 +163,16 @@ def plot(path: Path, results: dict) -> None:
         ("one step", "#dd8452", {m: s["eps"] for m, s in results["held_out"]["modes"].items()}),
         ("GRU", "#4c72b0", {m: s["eps"] for m, s in gru.items()}),
     ]
+    plot_held_out_bars(path, arms)
+
+
+def plot_held_out_bars(path: Path, arms: list[tuple[str, str, dict]]) -> None:
+    """Held-out success at ε = 0.05 per mode, a bar per arm (label, colour, mode -> its ``eps``
+    statistics), the explorers of the map-pool study as lines; written to ``path``."""
+    fig = Figure(figsize=(map_pool_study.FIGURE_WIDTH, 3.2), layout="constrained")
+    ax = fig.subplots()
     map_pool_study.draw_success_bars(ax, list(MODES), arms)
-    ax.set_xticks(range(len(MODES)), list(MODES))
+    no_memory = gru_study.read_no_memory()
     if no_memory:
         map_pool_study.draw_reference_lines(ax, no_memory["held_out"]["heuristics"])
     label = f"success on held-out maps (ε = {CONDITIONS['eps']:g})"
@@ -279,21 +292,25 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
+def run(args: argparse.Namespace) -> dict:
+    """The levers' runs with ``--levers``, else the study's."""
+    return run_levers(args) if args.levers else run_study(args)
+
+
+def format_results(results: dict) -> str:
+    """The levers' full − independent at ε, one line each, or the study's held-out table."""
+    if "levers" not in results:
+        return gru_study.format_table(results)
+    return "\n".join(
+        f"{name:<14} full - independent (validation, eps) "
+        f"{entry['full_minus_independent_best_eps']['mean']:+.3f}"
+        for name, entry in results["levers"].items()
+    )
+
+
 def main(argv: list[str] | None = None) -> dict:
     use_reproducible_matmul()  # before the first matrix product
-    make_console_safe()
-    args = parse_args(argv)
-    start = time.perf_counter()
-    if args.levers:
-        results = run_levers(args)
-        for name, entry in results["levers"].items():
-            s = entry["full_minus_independent_best_eps"]
-            print(f"{name:<14} full - independent (validation, eps) {s['mean']:+.3f}")
-    else:
-        results = run_study(args)
-        print(gru_study.format_table(results))
-    print(f"wrote {args.output_dir} ({time.perf_counter() - start:.0f} s)")
-    return results
+    return study_main(argv, parse_args, run, format_results)
 
 
 if __name__ == "__main__":
