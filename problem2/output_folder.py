@@ -3,7 +3,8 @@
 settings only with ``--overwrite``), the batch written into a hidden staging folder and moved
 into place whole (:func:`staged_batch`), the rows of an interrupted batch kept in
 ``interrupted/<n>/``, stale temporaries of killed runs removed, and worker processes that stop
-with their parent (:func:`start_worker`). Standard library only."""
+with their parent (:func:`start_worker`); the finished batch's record, whose manifest
+evaluate.py checks (:func:`record_batch`). Standard library only."""
 
 from __future__ import annotations
 
@@ -19,6 +20,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
+
+import safety
 
 PROBLEM2 = Path(__file__).resolve().parent
 REPOSITORY = PROBLEM2.parent
@@ -78,10 +81,13 @@ def check_output_dir(
     (its manifest's), results without a manifest, or settings other than ``default`` in the
     default results folder ``default_dir``. A batch of identical settings is replaced."""
     if root.exists() and not root.is_dir():
-        raise FolderError(f"must be a folder, not a file ({root})")
+        raise FolderError(f"must be a folder, not a file ({safety.shown(root)})")
     code = code_folder(root)
     if code is not None:
-        where = f"is the code folder {code}" if code == root else f"lies in the code folder {code}"
+        named = code.relative_to(REPOSITORY).as_posix()  # e.g. problem2/analysis
+        where = (
+            f"is the code folder {named}" if code == root else f"lies in the code folder {named}"
+        )
         raise FolderError(
             f"{where}: choose a folder for results, e.g. --output_dir my_run from problem2/ or "
             "a folder under problem2/results/"
@@ -90,12 +96,15 @@ def check_output_dir(
     if others:
         shown = ", ".join(others[:5]) + (", ..." if len(others) > 5 else "")
         raise FolderError(
-            f"holds files that are not a training batch's ({root}: {shown}); a batch goes into "
-            "a new or empty folder or one holding a batch: choose another --output_dir"
+            f"holds files that are not a training batch's ({safety.shown(root)}: {shown}); a batch "
+            "goes into a new or empty folder or one holding a batch: choose another --output_dir"
         )
     if overwrite:
         return
-    remedy = f"choose another --output_dir, or pass --overwrite to replace the batch in {root}"
+    remedy = (
+        "choose another --output_dir, or pass --overwrite to replace the batch in "
+        + safety.shown(root)
+    )
     manifest = root / "agent_models" / MANIFEST
     if manifest.is_file():
         try:
@@ -238,6 +247,43 @@ def model_listing(files: dict[str, str], models_dir: Path) -> dict[str, dict[str
     """The manifest's record of a model pair: files (relative to ``models_dir``), sha256."""
     digests = {a: hashlib.sha256((models_dir / f).read_bytes()) for a, f in files.items()}
     return {"models": files, "sha256": {a: d.hexdigest() for a, d in digests.items()}}
+
+
+SELECTION_MEASURES = ("success_rate", "mean_steps_to_success", "mean_return")
+
+
+def record_batch(
+    staging: Path,
+    finals: list[dict[str, Any]],
+    best: dict[str, str],
+    identity: dict,
+    select_by: str,
+) -> None:
+    """After every run, the batch's record: the wall times (``timing.json``), each mode's best
+    pair copied to ``<mode>_agent_{A,B}.pt`` and, last, the manifest (``identity``, each run's
+    selection results and model files with their sha256, which evaluate.py checks)."""
+    models, logs = staging / "agent_models", staging / "training_logs"
+    seconds = {f"{f['mode']}_seed{f['seed']}": round(f.pop("seconds"), 1) for f in finals}
+    safety.write_json_atomic(logs / "timing.json", seconds)
+    for mode, name in best.items():
+        for agent in "AB":
+            with safety.temporary_path_for(models / f"{mode}_agent_{agent}.pt") as temporary:
+                shutil.copyfile(models / f"{name}_agent_{agent}.pt", temporary)
+    runs = {}
+    for final in finals:
+        name = f"{final['mode']}_seed{final['seed']}"
+        files = {agent: f"{name}_agent_{agent}.pt" for agent in "AB"}
+        runs[name] = {"mode": final["mode"], "seed": final["seed"]}
+        runs[name] |= model_listing(files, models)
+        runs[name]["selection"] = {"select_by": select_by} | {
+            condition: {key: final[condition][key] for key in SELECTION_MEASURES}
+            for condition in ("greedy", "eps")
+        }
+        last = {agent: f"last_weights/{name}_agent_{agent}.pt" for agent in "AB"}
+        if all((models / f).is_file() for f in last.values()):  # trained with keep_best
+            runs[name]["last_weights"] = model_listing(last, models)
+    manifest = {"format": 1, **identity, "runs": runs, "best": best}
+    safety.write_json_atomic(models / MANIFEST, manifest)
 
 
 # ------------------------------------------------------------------ worker processes

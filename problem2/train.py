@@ -5,11 +5,12 @@
     python train.py --help               # every setting, its meaning and its allowed range
 
 Read from :func:`main` down: the flags (``settings.TrainConfig``: each setting's default,
-meaning and check, declared once), the output folder's checks (``safety.py``), then for each
-mode and seed :func:`train_one`: the environment, the learner (``trainer.DQNTrainer``),
-``train()``, the saved models and log, and the validation that picks each mode's best seed;
-then the batch's record (:func:`record_batch`) and its curves. :func:`apply_observation_mask`
-and :class:`MultiAgentTrainer` are the course skeleton's names.
+meaning and check, declared once), the output folder's checks (``output_folder.py``), then
+for each mode and seed :func:`train_one`: the environment, the learner
+(``trainer.DQNTrainer``), ``train()``, the saved models and log, and the validation that
+picks each mode's best seed (:func:`best_runs`); then the curves and the batch's record
+(``output_folder.record_batch``). :func:`apply_observation_mask` and
+:class:`MultiAgentTrainer` are the course skeleton's names.
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ import csv
 import dataclasses
 import math
 import multiprocessing
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -46,7 +46,6 @@ from vector_env import NUM_ACTIONS, VectorMultiAgentEnv, generate_map
 
 __all__ = ["EVAL_EPSILON", "MultiAgentTrainer", "TrainConfig", "apply_observation_mask", "main"]
 
-SELECTION_MEASURES = ("success_rate", "mean_steps_to_success", "mean_return")
 MODE_COLOURS = {
     "independent": "#1b9e77",
     "comm": "#d95f02",
@@ -161,46 +160,23 @@ def report_progress(trainer: DQNTrainer, row: dict[str, Any], clock: dict[str, f
     if done < 1 and elapsed < clock["shown"] + 10:
         return
     clock["shown"] = elapsed
-    eta = elapsed * (1 - done) / done if done else float("nan")
+    eta = f", ETA {elapsed * (1 - done) / done:.0f} s" if done else ""  # none before a step
     print(
         f"{trainer.name}: {row['env_steps']:,} env steps ({done:.0%}), "
         f"{row['env_steps'] / max(elapsed, 1e-9):,.0f} steps/s, epsilon {row['epsilon']:.2f}, "
-        f"validation success {row['eval_success_eps']:.2f}, ETA {eta:.0f} s",
+        f"validation success {row['eval_success_eps']:.2f}{eta}",
         flush=True,
     )
 
 
-def record_batch(cfg: TrainConfig, finals: list[dict[str, Any]], staging: Path) -> dict[str, str]:
-    """After every run: the wall times, each mode's best pair ``<mode>_agent_{A,B}.pt`` (the
-    seed ``select_by`` picks on the validation episodes), the curves and, last, the manifest
-    (the runs, their selection results and each model file's sha256, which evaluate.py
-    checks). Returns the best run of each mode."""
-    models, logs = staging / "agent_models", staging / "training_logs"
-    seconds = {f"{f['mode']}_seed{f['seed']}": round(f.pop("seconds"), 1) for f in finals}
-    safety.write_json_atomic(logs / "timing.json", seconds)
-    best, runs = {}, {}
+def best_runs(cfg: TrainConfig, finals: list[dict[str, Any]]) -> dict[str, str]:
+    """Each mode's best run (``<mode>_seed<seed>``): the seed ``select_by`` picks on the
+    validation episodes (:func:`rollout.select_best`)."""
+    best = {}
     for mode in cfg.run_modes():
-        mode_runs = sorted((f for f in finals if f["mode"] == mode), key=lambda f: f["seed"])
-        winner = mode_runs[select_best([(f["greedy"], f["eps"]) for f in mode_runs], cfg.select_by)]
+        runs = sorted((f for f in finals if f["mode"] == mode), key=lambda f: f["seed"])
+        winner = runs[select_best([(f["greedy"], f["eps"]) for f in runs], cfg.select_by)]
         best[mode] = f"{mode}_seed{winner['seed']}"
-        for agent in "AB":
-            with safety.temporary_path_for(models / f"{mode}_agent_{agent}.pt") as temporary:
-                shutil.copyfile(models / f"{best[mode]}_agent_{agent}.pt", temporary)
-    for final in finals:
-        name = f"{final['mode']}_seed{final['seed']}"
-        files = {agent: f"{name}_agent_{agent}.pt" for agent in "AB"}
-        runs[name] = {"mode": final["mode"], "seed": final["seed"]}
-        runs[name] |= output_folder.model_listing(files, models)
-        runs[name]["selection"] = {"select_by": cfg.select_by} | {
-            condition: {key: final[condition][key] for key in SELECTION_MEASURES}
-            for condition in ("greedy", "eps")
-        }
-        last = {agent: f"last_weights/{name}_agent_{agent}.pt" for agent in "AB"}
-        if all((models / f).is_file() for f in last.values()):  # trained with keep_best
-            runs[name]["last_weights"] = output_folder.model_listing(last, models)
-    plot_training_curves(logs, cfg.run_modes(), cfg.run_seeds(), cfg.hyperparameters())
-    manifest = {"format": 1, **cfg.identity(), "runs": runs, "best": best}
-    safety.write_json_atomic(models / output_folder.MANIFEST, manifest)
     return best
 
 
@@ -249,7 +225,7 @@ def plot_training_curves(
     title = f"mean of {len(seeds)} seeds\n(band: middle half)"
     ax.legend(fontsize=8, frameon=False, title=title, title_fontsize=8)
     with safety.temporary_path_for(logs_dir / "training_curves.png") as temporary:
-        fig.savefig(temporary, format="png", dpi=150)
+        fig.savefig(temporary, format="png", dpi=300)  # printed 6.5 in wide: 300 ppi
 
 
 def main(
@@ -267,7 +243,7 @@ def main(
         formatter_class=argparse.RawDescriptionHelpFormatter,  # the epilog's paragraphs kept
     )
     try:  # a bad setting or folder: one line each, naming the flag (exit status 2)
-        cfg = validated(cfg) if cfg else parse_config(argv, parser)
+        cfg = parse_config(argv, parser) if cfg is None else validated(cfg)
         root = Path(cfg.output_dir).resolve()
         default = TrainConfig().identity()
         output_folder.check_output_dir(
@@ -292,7 +268,10 @@ def main(
             jobs = [(cfg, mode, seed, staging, trainer_class) for mode, seed in runs]
             with context.Pool(workers, output_folder.start_worker) as pool:
                 finals = pool.starmap(train_one, jobs, chunksize=1)
-        best = record_batch(cfg, finals, staging)
+        best = best_runs(cfg, finals)
+        logs = staging / "training_logs"
+        plot_training_curves(logs, cfg.run_modes(), cfg.run_seeds(), cfg.hyperparameters())
+        output_folder.record_batch(staging, finals, best, cfg.identity(), cfg.select_by)
     output_folder.keep_out_of_git(root, DEFAULT_OUTPUT_DIR)
     for final in finals:
         name = f"{final['mode']}_seed{final['seed']}"

@@ -409,8 +409,12 @@ class DQNTrainer:
         ``seed``, with the mean return under the assignment's table on the same episodes
         (``mean_table_return``), in environments made once per run (reseeded each time)."""
         env = self.evaluation_env(num_episodes)
-        results = run_episodes(env, self.policy(epsilon), num_episodes, seed=seed)
+        results = run_episodes(env, self.evaluation_policy(env, epsilon), num_episodes, seed=seed)
         return validation_summary(results)
+
+    def evaluation_policy(self, env: VectorMultiAgentEnv, epsilon: float) -> PolicyFn:
+        """The policy the evaluations play in ``env`` (an agent with memory needs ``env``)."""
+        return self.policy(epsilon)
 
     def evaluation_env(self, num_episodes: int) -> VectorMultiAgentEnv:
         """The environments that play ``num_episodes`` evaluation episodes, made once per run

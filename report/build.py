@@ -31,6 +31,14 @@ from pathlib import Path
 import typst
 
 ROOT = Path(__file__).resolve().parent.parent
+
+
+def shown(path: Path) -> str:
+    """``path`` relative to the repository when inside it (console lines name no machine)."""
+    path = path.resolve()
+    return path.relative_to(ROOT).as_posix() if path.is_relative_to(ROOT) else str(path)
+
+
 MAIN = Path("report") / "report.typ"  # relative to the root
 STUDIES = Path("report") / "studies.typ"  # the companion
 DOCUMENTS = {"report": MAIN, "studies": STUDIES}
@@ -202,7 +210,8 @@ def main(argv: list[str] | None = None) -> None:
         build(args.studies_output, identity["name"], identity["email"], document="studies")
     except typst.TypstError as error:
         sys.exit(f"report: Typst could not build the report:\n{error}")
-    print(f"wrote {args.output} and {args.studies_output} in {time.perf_counter() - start:.1f} s")
+    written = " and ".join(shown(Path(path)) for path in (args.output, args.studies_output))
+    print(f"wrote {written} in {time.perf_counter() - start:.1f} s")
     if not all(identity.values()):
         print(f"report: {FILL_HINT}")
 

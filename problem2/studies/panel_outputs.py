@@ -14,8 +14,9 @@ from safety import temporary_path_for
 import numpy as np
 from analysis.plots import save_figure
 from matplotlib.figure import Figure
+from settings import TRAINABLE_MODES
 
-MODE_ORDER = ("independent", "comm", "distance", "full")
+MODE_ORDER = TRAINABLE_MODES
 ASSIGNMENT_MAP = 641
 VERDICT_MARKS = {"gain": "+", "loss": "-", "unclear": ""}
 FIGURE_WIDTH = 6.3  # inches (16 cm): the report places the figure at this width

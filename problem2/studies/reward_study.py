@@ -35,13 +35,13 @@ from analysis.evaluator import MultiAgentEvaluator
 from analysis.runs import Experiment, load_model_pair, read_experiment
 from analysis.stats import seed_statistics
 from rollout import EVAL_EPSILON, EVAL_SEED
+from settings import MODES
 from vector_env import DEFAULT_MAP_SEED, TARGET, VectorMultiAgentEnv, generate_map
 
 from studies import joint_dp
 from studies.reward_study_outputs import CONDITIONS, format_table, plot_study
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "reward"
-MODES = ("independent", "comm", "full")
 MEASURES = {
     "success_rate": "share of episodes with both agents on the target within 50 steps",
     "mean_steps_to_success": "mean steps of the successful episodes (null if none)",

@@ -31,11 +31,11 @@ from analysis.arrivals import arrivals
 from analysis.episodes import EvaluationSetting, model_policy, recorded_episodes
 from analysis.runs import load_map, load_model_pair
 from rollout import VALIDATION_SEED
+from settings import MODES
 from train import read_csv
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "stability"
 SEEDS = (100, 101, 102, 103)  # training seeds: never the reported 641-650
-MODES = ("independent", "comm", "full")
 CANDIDATES = {
     "arrival_plain": {
         "flags": "--reward_mode arrival --target_potential 0 --advantage_learning 0",

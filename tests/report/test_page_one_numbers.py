@@ -34,7 +34,15 @@ def fixed(x: float, digits: int) -> str:
 
 
 def pct(x: float, digits: int = 1) -> str:
-    return fixed(100 * x, digits) + " %"
+    """As the report's ``pct`` (report/lib.typ): up to two more decimals where the rounded
+    value would read 0 or 100 without being it (99.98 %, not 100.0 %)."""
+    value, shown = 100 * x, digits
+    while shown < digits + 2 and (
+        (value != 0 and abs(float(fixed(value, shown))) < 10**-shown / 2)
+        or (value < 100 and float(fixed(value, shown)) >= 100)
+    ):
+        shown += 1
+    return fixed(value, shown) + " %"
 
 
 def signed(x: float, digits: int = 1) -> str:

@@ -21,13 +21,14 @@ import numpy as np
 import torch
 from models import OBSERVATION_DIM, observation_mask, save_scripted
 from rollout import PolicyFn
+from settings import TRAINABLE_MODES
 from torch import nn
 from torch.nn import functional as F
 from vector_env import MESSAGE_INDEX, VectorMultiAgentEnv
 
 NUM_ACTIONS = 5
 # The 2 x 2 of the channels: the assignment's three ablations and "distance" (message masked).
-MEMORY_MODES = ("independent", "comm", "distance", "full")
+MEMORY_MODES = TRAINABLE_MODES
 
 
 def mode_mask(mode: str) -> np.ndarray:

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import torch
 from multi_agent_env import MultiAgentEnv
-from rollout import EVAL_SEED, run_episodes, validation_summary
+from rollout import EVAL_SEED
 from torch.nn import functional as F
 
 from studies.memory.agents import NUM_ACTIONS, RecurrentQNetwork, export_recurrent, memory_policy
@@ -338,12 +338,9 @@ class RecurrentTrainer(PoolTrainer):
         return loss_value
 
     # ------------------------------------------------------------------ 7. evaluate, save
-    def evaluation_summary(
-        self, num_episodes: int, epsilon: float, seed: int
-    ) -> dict[str, float | int | None]:
-        env = self.evaluation_env(num_episodes)
-        policy = memory_policy((self.online, self.online), env, epsilon, EVAL_SEED)
-        return validation_summary(run_episodes(env, policy, num_episodes, seed=seed))
+    def evaluation_policy(self, env: Any, epsilon: float) -> Any:
+        """Both agents' memory policy in ``env`` (the core's evaluations play it)."""
+        return memory_policy((self.online, self.online), env, epsilon, EVAL_SEED)
 
     def policy(self, epsilon: float = 0.0, seed: int = EVAL_SEED) -> Any:
         raise NotImplementedError("a memory agent needs its environment: use memory_policy")

@@ -37,7 +37,7 @@ from analysis.episodes import explore_by_step, model_policy
 from analysis.stats import BOOTSTRAP_RESAMPLES, CONFIDENCE, mode_contrasts, seed_statistics
 from batch.plumbing import ProgressLine, run_jobs
 from rollout import EVAL_EPSILON, EVAL_SEED, PolicyFn, run_episodes
-from settings import TrainConfig, available_cores
+from settings import TRAINABLE_MODES, TrainConfig, available_cores
 from vector_env import VectorMultiAgentEnv
 
 from studies.memory.agents import memory_policy
@@ -46,7 +46,7 @@ from studies.one_step.panel_outputs import format_table, plot_panel, write_csv
 from studies.panel import EFFECT_WORDS, EFFECTS, PANEL_DIR, PANEL_MAP_SEEDS
 
 MEMORY_PANEL_DIR = PANEL_DIR.parent / "memory_panel"
-MODES = ("independent", "comm", "distance", "full")
+MODES = TRAINABLE_MODES
 SEEDS = tuple(range(641, 646))
 CONDITIONS = {"greedy": 0.0, "eps": EVAL_EPSILON}
 

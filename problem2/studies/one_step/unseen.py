@@ -36,7 +36,7 @@ from analysis.stats import seed_statistics
 from batch.plumbing import ProgressLine, run_jobs
 from matplotlib.figure import Figure
 from multi_agent_env import MultiAgentEnv
-from settings import available_cores, validated
+from settings import TRAINABLE_MODES, available_cores, validated
 
 from studies import map_pool_study
 from studies.memory import study as gru_study
@@ -48,7 +48,7 @@ from studies.staging import best_env_steps, best_selection, staged_output, train
 RESULTS = gru_study.RESULTS
 STUDY_DIR = RESULTS / "one_step_unseen"
 LEVERS_DIR = RESULTS / "one_step_unseen_levers"
-MODES = ("independent", "comm", "distance", "full")
+MODES = TRAINABLE_MODES
 SEEDS = (0, 1, 2, 3, 4)  # the map-pool and memory studies' seeds: runs pair by seed
 EPISODES_PER_MAP = 500  # as the GRU agents'
 TRAINING_SEEDS = (100, 101)  # the levers' (never reported)
