@@ -1,5 +1,5 @@
 """The listener at two million steps: one pre-named cell of the screen, confirmed on training
-seeds and validation maps before any held-out test (issue 60, step 1).
+seeds and validation maps before any held-out test.
 
     python -m studies.one_step.beacon_long      # 16 runs, writes beacon_long.json
 

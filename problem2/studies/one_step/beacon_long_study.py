@@ -1,4 +1,4 @@
-"""The listener at two million steps on maps never seen (issue 60, step 2): the R + H + D cell
+"""The listener at two million steps on maps never seen (the held-out test): the R + H + D cell
 that passed its confirmation on training seeds (``beacon_long.py``), tested on the held-out maps.
 
     python -m studies.one_step.beacon_long_study     # 35 runs of 2 M steps, then the tests
@@ -16,7 +16,8 @@ agents of any training at any length: the screen's best independent cell (named 
 ``beacon.json`` holds their held-out success), the recipe's independent agents at 1 M steps
 (``one_step_unseen/unseen.json``) and the recipe's independent agents trained here for 2 M
 steps on seeds 0–4 (the one-step map-pool recipe, no listener option). The verdicts of the
-issue's done-when (``VERDICTS``) are computed, not chosen: nothing here was tuned on seeds 0–9.
+rules fixed before the test (``VERDICTS``) are computed, not chosen: nothing here was tuned on
+seeds 0–9.
 
 Outputs: ``results/studies/beacon_long/held_out/`` (``beacon_long_study.json``,
 ``beacon_long_study.png``, ``agent_models/``, ``training_logs/``, ``timing.json``: wall
@@ -60,7 +61,7 @@ PAIRED_SEEDS = tuple(range(10))  # full and independent
 OTHER_SEEDS = (0, 1, 2, 3, 4)  # comm, distance and the recipe's independent agents at 2 M
 RECIPE_2M = "recipe_independent_2M"  # label of the recipe's independent runs at 2 M steps
 RECIPE_CHANGES = {"total_steps": LONGER}  # the one-step map-pool recipe, no listener option
-FULL_FLOOR, MARGIN = 0.50, 0.10  # the issue's done-when, success rates
+FULL_FLOOR, MARGIN = 0.50, 0.10  # the rules fixed before the test, success rates
 VERDICTS = {
     "full_at_least_0.50": "full's mean held-out success at eps = 0.05 over seeds 0-9 >= 0.50",
     "full_minus_independent": "full - independent (trained the same way, paired by seed 0-9, "
@@ -119,7 +120,8 @@ def against(full: dict[int, dict], others: dict[int, dict]) -> dict[str, Any]:
 
 
 def verdicts(results: dict) -> dict[str, dict[str, Any]]:
-    """The issue's done-when, each with its rule, the numbers it reads and whether it holds."""
+    """The rules fixed before the test, each with its rule, the numbers it reads and whether it
+    holds."""
     full = results["held_out"]["modes"]["full"]
     difference = results["held_out"]["differences"]["full-independent"]["eps"]
     best = {k: v["full_minus"]["eps"] for k, v in results["best_independent"].items()}
