@@ -37,7 +37,10 @@ class FolderError(ValueError):
 
 def code_folder(root: Path) -> Path | None:
     """The code folder that ``root`` is or lies in, if any: a package (``__init__.py``) or a
-    folder of the repository other than problem2 holding source files (problem1, report)."""
+    folder of the repository other than problem2 holding source files (problem1, report),
+    and problem2 or the repository itself."""
+    if root in (PROBLEM2, REPOSITORY):
+        return root
     for path in (root, *root.parents):
         if path == REPOSITORY or not path.is_relative_to(REPOSITORY):
             return None
@@ -88,6 +91,7 @@ def check_output_dir(
         where = (
             f"is the code folder {named}" if code == root else f"lies in the code folder {named}"
         )
+        where = "is the repository's root (code)" if code == REPOSITORY else where
         raise FolderError(
             f"{where}: choose a folder for results, e.g. --output_dir my_run from problem2/ or "
             "a folder under problem2/results/"

@@ -132,8 +132,14 @@ def test_a_folder_inside_the_code_is_refused_even_with_overwrite(
         assert f"argument --output_dir: {code or within}:" in message
         assert "choose a folder for results" in message
     assert not (PROBLEM2 / "analysis" / "new_run").exists()
-    for folder in ("../report", "../problem1/results/x", ".", ".."):
-        with pytest.raises(output_folder.FolderError):
+    named = {
+        "../report": "is the code folder report",
+        "../problem1/results/x": "lies in the code folder problem1",
+        ".": "is the code folder problem2",
+        "..": "is the repository's root",
+    }
+    for folder, words in named.items():
+        with pytest.raises(output_folder.FolderError, match=words):
             check_output_dir(TrainConfig(output_dir=folder, overwrite=True))
 
 
