@@ -1,6 +1,7 @@
 """The held-out study of the listener at two million steps (studies/one_step/beacon_long_study.py):
-its runs, its comparisons with the best independent agents of any training, the issue's
-verdicts, and a smoke run (one real run; the others stand-ins) that writes the study whole."""
+its runs, its comparisons with the best independent agents of any training, the verdicts
+fixed before the test, the summary rebuilt from the recorded runs, and a smoke run (one real
+run; the others stand-ins) that writes the study whole."""
 
 from __future__ import annotations
 
@@ -75,7 +76,7 @@ def results_with(full: list[float], difference: dict, best_low: float, replaced:
             stats([0.1] * 10, 0.1, 0.1),
             0.01,
             -0.05,
-            set(beacon_long_study.VERDICTS) - {"moonshot_every_seed_0.68"},
+            set(beacon_long_study.VERDICTS) - {"every_seed_at_least_0.68"},
         ),
         ([0.499] * 10, stats([0.099] * 10, 0.0, 0.2), 0.0, -0.005, set()),
         (
@@ -83,11 +84,11 @@ def results_with(full: list[float], difference: dict, best_low: float, replaced:
             stats([0.3] * 10, -0.01, 0.5),
             -0.1,
             0.02,
-            {"full_at_least_0.50", "moonshot_every_seed_0.68"},
+            {"full_at_least_0.50", "every_seed_at_least_0.68"},
         ),
     ],
 )
-def test_the_verdicts_apply_the_issues_done_when(
+def test_the_verdicts_apply_the_rules_fixed_before_the_test(
     full: list[float], difference: dict, best_low: float, replaced: float, holding: set
 ) -> None:
     verdicts = beacon_long_study.verdicts(results_with(full, difference, best_low, replaced))
@@ -149,3 +150,19 @@ def test_it_needs_the_passed_confirmation_and_refuses_smoke_runs_into_the_result
     with pytest.raises(SystemExit, match="did not pass"):
         beacon_long_study.main([*argv, "--confirmation", str(failed)])
     assert not (tmp_path / "b").exists()
+
+
+def test_the_summary_rebuilt_from_the_recorded_runs_is_the_committed_json(tmp_path: Path) -> None:
+    """--summary_only trains nothing: from the runs alone (every other key dropped) and seed
+    0's saved full pair it writes the committed JSON byte for byte."""
+    committed = beacon_long_study.STUDY_DIR
+    folder = tmp_path / "held_out"
+    (folder / "agent_models").mkdir(parents=True)
+    for model in (committed / "agent_models").glob("full_seed0_agent_*.pt"):
+        (folder / "agent_models" / model.name).write_bytes(model.read_bytes())
+    name = "beacon_long_study.json"
+    recorded = json.loads((committed / name).read_text(encoding="utf-8"))
+    runs_only = {key: recorded[key] for key in ("runs", "recipe_2M_runs")}
+    (folder / name).write_text(json.dumps(runs_only), encoding="utf-8")
+    beacon_long_study.main(["--summary_only", "--output_dir", str(folder)])
+    assert (folder / name).read_bytes() == (committed / name).read_bytes()
