@@ -271,7 +271,7 @@ class GridWorldVisualizer:
         threshold. Right: Q-iteration's change divided by value iteration's, sweep by sweep
         (the two curves would lie on top of each other on the left: max_a Q_k = V_k from zero
         starts, and QI's change runs over every (s, a))."""
-        fig = Figure(figsize=(6.5, 2.6), layout="constrained")
+        fig = Figure(figsize=(6.3, 2.5), layout="constrained")
         left, right = fig.subplots(1, 2)
         vi = np.asarray(vi_history, dtype=float)
         qi = np.asarray(qi_history, dtype=float)
