@@ -26,11 +26,11 @@ from matplotlib.figure import Figure  # figures without pyplot: no GUI backend, 
 from matplotlib.patches import Patch, Rectangle
 
 CELL_STYLE = {  # frame colour, legend entry
-    "goal": ("#1a9641", "goal: +10, episode ends"),
+    "goal": ("#1a9641", "goal: +10, episode ends (no value)"),
     "penalty": ("#d7191c", "penalty cell: −5"),
     "start": ("#2b83ba", "start"),
 }
-FREE_CELL_LABEL = "any other cell: −0.1"
+GOAL_FILL = {"facecolor": "0.88", "edgecolor": "0.55", "hatch": "//"}  # drawn and in the legend
 DETOUR_LABEL = "detour: a worse move without drift"
 VALUE_FONT = 9
 SMALL_FONT = 8  # the smallest text in any figure, in points at the width the report prints it
@@ -93,10 +93,8 @@ class GridWorldVisualizer:
                 (goal_c - 0.5, goal_r - 0.5),
                 1,
                 1,
-                facecolor="0.88",
-                edgecolor="0.55",
-                hatch="//",
                 linewidth=0,
+                **GOAL_FILL,
             )
         )
         special = [
@@ -132,19 +130,27 @@ class GridWorldVisualizer:
         )
 
     def add_cell_legend(self, fig: Figure, detours: bool = False) -> None:
-        """Legend of the coloured frames (and of the detour frame), below the figure."""
-        handles = [
-            Patch(facecolor="none", edgecolor=colour, linewidth=2, label=label)
-            for colour, label in CELL_STYLE.values()
-        ]
-        handles.append(Patch(facecolor="black", label="obstacle"))
-        handles.append(Patch(facecolor="none", edgecolor="0.6", label=FREE_CELL_LABEL))
+        """Legend of the cells drawn as :meth:`draw_grid` draws them (the goal's grey hatching
+        inside its frame, the other coloured frames, obstacles, the detour frame), below the
+        figure."""
+        handles, labels = [], []
+        for kind, (colour, label) in CELL_STYLE.items():
+            frame = Patch(facecolor="none", edgecolor=colour, linewidth=2)
+            # the goal: its hatched fill with the frame drawn over it (a tuple overlays both)
+            handles.append((Patch(linewidth=0, **GOAL_FILL), frame) if kind == "goal" else frame)
+            labels.append(label)
+        handles.append(Patch(facecolor="black"))
+        labels.append("obstacle")
         if detours:
-            handles.append(
-                Patch(facecolor="none", edgecolor="black", ls=(0, (2, 2)), lw=2, label=DETOUR_LABEL)
-            )
+            handles.append(Patch(facecolor="none", edgecolor="black", ls=(0, (2, 2)), lw=2))
+            labels.append(DETOUR_LABEL)
         fig.legend(
-            handles=handles, loc="outside lower center", ncols=3, fontsize=SMALL_FONT, frameon=False
+            handles,
+            labels,
+            loc="outside lower center",
+            ncols=3 if detours else 2,
+            fontsize=SMALL_FONT,
+            frameon=False,
         )
 
     @staticmethod
@@ -260,55 +266,40 @@ class GridWorldVisualizer:
         gamma: float = 0.95,
         epsilon: float | None = 1e-4,
     ) -> Figure:
-        """Sup-norm change per sweep of both algorithms (log scale) with the contraction
-        bound ``||x_k - x_(k-1)|| <= gamma^(k-1) ||x_1 - x_0||`` (the legend's words)."""
-        fig = Figure(figsize=(4.3, 3.4), layout="constrained")
-        ax = fig.subplots()
-        # The two histories nearly coincide (max_a Q_k = V_k from zero starts; QI's change runs
-        # over every (s, a)), so VI is drawn as filled dots on a solid line and QI as larger
-        # open squares around them.
-        for name, history, style in (
-            ("value iteration", vi_history, {"fmt": "o-", "ms": 3.5, "color": "#1f77b4"}),
-            (
-                "Q-iteration",
-                qi_history,
-                {"fmt": "s--", "ms": 7, "mfc": "none", "mew": 1.0, "color": "#ff7f0e"},
-            ),
-        ):
-            sweeps = np.arange(1, len(history) + 1)
-            fmt = style.pop("fmt")
-            ax.semilogy(
-                sweeps,
-                history,
-                fmt,
-                markersize=style.pop("ms"),
-                lw=1.0,
-                label=f"{name} ({len(history)} sweeps)",
-                **style,
-            )
-        longest = max(len(vi_history), len(qi_history))
-        sweeps = np.arange(1, longest + 1)
-        first = max(vi_history[0], qi_history[0])
-        ax.semilogy(
-            sweeps,
-            first * gamma ** (sweeps - 1),
+        """Two panels. Left: value iteration's sup-norm change per sweep (log scale) with the
+        contraction bound ``||x_k - x_(k-1)|| <= gamma^(k-1) ||x_1 - x_0||`` and the stopping
+        threshold. Right: Q-iteration's change divided by value iteration's, sweep by sweep
+        (the two curves would lie on top of each other on the left: max_a Q_k = V_k from zero
+        starts, and QI's change runs over every (s, a))."""
+        fig = Figure(figsize=(6.3, 2.5), layout="constrained")
+        left, right = fig.subplots(1, 2)
+        vi = np.asarray(vi_history, dtype=float)
+        qi = np.asarray(qi_history, dtype=float)
+        sweeps = np.arange(1, len(vi) + 1)
+        left.semilogy(sweeps, vi, "o-", ms=3, lw=1.0, color="#1f77b4", label="value iteration")
+        bound_sweeps = np.arange(1, max(len(vi), len(qi)) + 1)
+        left.semilogy(
+            bound_sweeps,
+            max(vi[0], qi[0]) * gamma ** (bound_sweeps - 1),
             ":",
             color="grey",
-            label=rf"contraction bound $\gamma^{{k-1}}\,\Delta_1$ ($\gamma$ = {gamma})",
+            label=rf"bound $\gamma^{{k-1}}\Delta_1$ ($\gamma$ = {gamma})",
         )
         if epsilon is not None:
-            ax.axhline(
-                epsilon,
-                color="black",
-                linewidth=0.8,
-                label=rf"stopping threshold $\varepsilon$ = {epsilon:g}",
-            )
-        ax.set_xlabel(r"sweep $k$", fontsize=VALUE_FONT)
-        ax.set_ylabel(r"sup-norm change  $\max\,|x_k - x_{k-1}|$", fontsize=VALUE_FONT)
-        ax.set_title("Convergence of value iteration and Q-iteration", fontsize=10)
-        ax.tick_params(labelsize=VALUE_FONT)
-        ax.grid(True, which="both", alpha=0.3)
-        fig.legend(loc="outside lower center", ncols=2, fontsize=SMALL_FONT, frameon=False)
+            left.axhline(epsilon, color="black", lw=0.8, label=rf"$\varepsilon$ = {epsilon:g}")
+        left.set_ylabel(r"change $\max|V_k - V_{k-1}|$", fontsize=SMALL_FONT)
+        left.set_title(f"Value iteration ({len(vi)} sweeps)", fontsize=VALUE_FONT)
+        shared = min(len(vi), len(qi))
+        ratio = qi[:shared] / np.where(vi[:shared] > 0, vi[:shared], np.nan)
+        right.plot(np.arange(1, shared + 1), ratio, "s-", ms=3, lw=1.0, color="#ff7f0e")
+        right.axhline(1.0, color="grey", lw=0.8, ls=":")
+        right.set_ylabel("QI's change / VI's change", fontsize=SMALL_FONT)
+        right.set_title(f"Q-iteration ({len(qi)} sweeps) against VI", fontsize=VALUE_FONT)
+        for ax in (left, right):
+            ax.set_xlabel(r"sweep $k$", fontsize=SMALL_FONT)
+            ax.tick_params(labelsize=SMALL_FONT)
+            ax.grid(True, which="major", alpha=0.3)
+        fig.legend(loc="outside lower center", ncols=3, fontsize=SMALL_FONT, frameon=False)
         return fig
 
     def create_comparison_figure(

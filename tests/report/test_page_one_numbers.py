@@ -159,7 +159,7 @@ def test_the_unseen_maps_numbers_come_from_their_studies() -> None:
     )
     assert f"distance costs them {distance} points" in page_one()
     assert f"message {message}" in page_one()
-    assert pct(one_step["modes"]["comm"]["eps"]["mean"], 0) in page_one()
+    assert points_ci(one_step["differences"]["comm-independent"]["eps"]) in page_one()
     assert pct(pool["heuristics"]["beacon_explorer"]["mean"], 0) in page_one()
 
 
