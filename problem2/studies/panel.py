@@ -57,6 +57,7 @@ from vector_env import DEFAULT_MAP_SEED, OBSTACLE, TARGET
 from studies.multiplicity import panel_effects
 from studies.panel_behaviour import BEHAVIOUR, beacon_behaviour, mode_behaviour, seed_behaviour
 from studies.panel_outputs import format_table, panel_summary, plot_effects, write_csv
+from studies.staging import run_command
 
 PANEL_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "panel"
 PANEL_MAP_SEEDS = (DEFAULT_MAP_SEED, *range(11))
@@ -304,4 +305,4 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main)

@@ -30,6 +30,7 @@ from settings import TrainConfig
 from train import read_csv
 
 from studies.panel import PANEL_DIR
+from studies.staging import run_command
 
 BUDGET_FACTOR = 2
 MODE = "full"
@@ -122,4 +123,4 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main)

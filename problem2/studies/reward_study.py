@@ -40,6 +40,7 @@ from vector_env import DEFAULT_MAP_SEED, TARGET, VectorMultiAgentEnv, generate_m
 
 from studies import joint_dp
 from studies.reward_study_outputs import CONDITIONS, format_table, plot_study
+from studies.staging import run_command
 
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "reward"
 MEASURES = {
@@ -394,4 +395,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main)

@@ -34,6 +34,8 @@ from rollout import VALIDATION_SEED
 from settings import MODES
 from train import read_csv
 
+from studies.staging import run_command
+
 STUDY_DIR = Path(__file__).resolve().parent.parent / "results" / "studies" / "stability"
 SEEDS = (100, 101, 102, 103)  # training seeds: never the reported 641-650
 CANDIDATES = {
@@ -178,4 +180,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_command(main))

@@ -10,6 +10,7 @@ import argparse
 import json
 import os
 import shutil
+import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -132,3 +133,14 @@ def redraw(folder: Path, stem: str, draw: Callable[[Path, dict], None]) -> dict:
     draw(folder / f"{stem}.png", results)
     print(f"wrote {repository_path(folder / f'{stem}.png')}")
     return results
+
+
+def run_command(main: Callable[[], Any]) -> Any:
+    """Run a study's ``main`` as a command and return its result; Ctrl-C ends it with one
+    line and exit status 130 instead of a traceback (a staging folder is cleaned up by the
+    study's own ``with``)."""
+    try:
+        return main()
+    except KeyboardInterrupt:
+        print("interrupted (Ctrl-C)", file=sys.stderr)
+        raise SystemExit(130) from None

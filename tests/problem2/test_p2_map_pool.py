@@ -15,7 +15,7 @@ from multi_agent_env import MultiAgentEnv
 from settings import validated
 from studies import map_pool_study
 from studies.pool_training import PoolConfig, PooledVectorEnv, PoolTrainer
-from studies.staging import staged_output
+from studies.staging import run_command, staged_output
 from vector_env import DEFAULT_MAP_SEED, VectorMultiAgentEnv, generate_map
 
 MAPS = np.stack([generate_map((10, 10), seed) for seed in (0, 1, 2, 3)])
@@ -326,3 +326,16 @@ def test_study_flags_become_the_recipe_with_seeds_from_zero(tmp_path: Path) -> N
     assert cfg.run_seeds() == [0, 1] and cfg.map_pool == 1 and cfg.run_modes() == ["full"]
     assert cfg.num_seeds == PoolConfig().num_seeds  # the count is stored as the seed list
     assert args.episodes_per_map == 500
+
+
+def test_a_study_command_interrupted_with_ctrl_c_ends_in_one_line_and_status_130(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    def interrupted() -> None:
+        raise KeyboardInterrupt
+
+    with pytest.raises(SystemExit) as exit_info:
+        run_command(interrupted)
+    assert exit_info.value.code == 130
+    assert capsys.readouterr().err == "interrupted (Ctrl-C)\n"
+    assert run_command(lambda: 7) == 7  # otherwise the study's result passes through

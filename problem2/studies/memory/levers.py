@@ -34,7 +34,14 @@ from settings import SettingError, available_cores, usage, validated
 from studies.memory.learner import Levers, RecurrentTrainer
 from studies.memory.study import RECIPE, RESULTS
 from studies.pool_training import PoolConfig
-from studies.staging import best_env_steps, best_selection, check_field, staged_output, train_into
+from studies.staging import (
+    best_env_steps,
+    best_selection,
+    check_field,
+    run_command,
+    staged_output,
+    train_into,
+)
 
 OUTPUT_DIR = RESULTS / "memory_levers"
 SETTINGS: dict[str, dict[str, Any]] = {
@@ -142,4 +149,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main)

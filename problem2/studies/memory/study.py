@@ -57,6 +57,7 @@ from studies.staging import (
     best_env_steps,
     best_selection,
     check_field,
+    run_command,
     staged_output,
     train_into,
     write_timing,
@@ -299,4 +300,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main)

@@ -34,7 +34,7 @@ from studies.one_step.beacon_screen import (
     train_cells,
     winner,
 )
-from studies.staging import staged_output, study_main
+from studies.staging import run_command, staged_output, study_main
 
 AROUND_DIR = gru_study.RESULTS / "beacon_around"
 HOMING = (1.0, 4.0)  # the first stage's κ is 2
@@ -114,4 +114,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main)

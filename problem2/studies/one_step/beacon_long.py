@@ -31,7 +31,7 @@ from studies.one_step.beacon_screen import (
     stage_parser,
     train_cells,
 )
-from studies.staging import staged_output, study_main
+from studies.staging import run_command, staged_output, study_main
 
 LONG_DIR = gru_study.RESULTS / "beacon_long"
 SEEDS = tuple(range(100, 108))  # training seeds: never reported as results
@@ -121,4 +121,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main)

@@ -54,7 +54,7 @@ from studies.one_step.beacon_screen import (
 )
 from studies.one_step.beacon_study import STUDY_DIR as SCREEN_STUDY_DIR
 from studies.one_step.beacon_study import drawn_episode, train_and_test
-from studies.staging import staged_output, study_main, write_timing
+from studies.staging import run_command, staged_output, study_main, write_timing
 
 STUDY_DIR = LONG_DIR / "held_out"
 CHANGES = cell_changes("RHD") | {"total_steps": LONGER}  # every mode: D acts only on distance
@@ -346,4 +346,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main)

@@ -36,6 +36,7 @@ from studies.one_step.beacon import BeaconConfig, BeaconTrainer
 from studies.staging import (
     best_env_steps,
     best_selection,
+    run_command,
     staged_output,
     study_main,
     train_into,
@@ -302,4 +303,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main)

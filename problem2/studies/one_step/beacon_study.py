@@ -55,7 +55,7 @@ from studies.one_step.beacon_screen import (
     checked_held_out_args,
     config,
 )
-from studies.staging import staged_output, study_main, train_into, write_timing
+from studies.staging import run_command, staged_output, study_main, train_into, write_timing
 
 STUDY_DIR = gru_study.RESULTS / "beacon"
 MODES = unseen.MODES
@@ -251,4 +251,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main)

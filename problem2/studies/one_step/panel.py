@@ -44,6 +44,7 @@ from studies.memory.agents import memory_policy
 from studies.one_step.agents import OneStepMemoryTrainer
 from studies.one_step.panel_outputs import format_table, plot_panel, write_csv
 from studies.panel import EFFECT_WORDS, EFFECTS, PANEL_DIR, PANEL_MAP_SEEDS
+from studies.staging import run_command
 
 MEMORY_PANEL_DIR = PANEL_DIR.parent / "memory_panel"
 MODES = TRAINABLE_MODES
@@ -304,4 +305,4 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main)

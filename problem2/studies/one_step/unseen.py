@@ -46,6 +46,7 @@ from studies.pool_training import CurriculumEnv, PoolConfig, PoolTrainer
 from studies.staging import (
     best_env_steps,
     best_selection,
+    run_command,
     staged_output,
     study_main,
     train_into,
@@ -314,4 +315,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main)

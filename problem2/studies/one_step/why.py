@@ -55,6 +55,7 @@ from studies.one_step.panel import (
     read_batch,
 )
 from studies.panel import PANEL_DIR
+from studies.staging import run_command
 
 MAPS = (4, 1, 6)  # the panel's maps with the target in open ground, map 4 first (the figure)
 MODE = "independent"
@@ -333,4 +334,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main)
