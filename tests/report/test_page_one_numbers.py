@@ -181,7 +181,7 @@ def test_the_unseen_maps_numbers_come_from_their_studies() -> None:
     assert f"comm - independent {points_ci(gaps['comm-independent']['eps'])}" in page_one()
     probes = listener["modes"]["full"]["interventions_delta_success"]
     distance = fixed(-100 * probes["distance.same_step"]["eps"]["mean"], 1)
-    assert f"distance costs them {distance} points" in page_one()
+    assert f"distance costs full pairs {distance} points" in page_one()
     assert pct(pool["heuristics"]["beacon_explorer"]["mean"]) in page_one()
 
 
