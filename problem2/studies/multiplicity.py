@@ -1,9 +1,12 @@
 """Multiplicity: Holm's correction over each family of tests the report calls established.
 
-Two families, both at the epsilon test condition:
+Three families, all at the epsilon test condition:
 
 * **the panel's effects**: on each map of the panel, the four contrasts of the modes' test
   success (message, distance, both, interaction; ``studies/panel.py``);
+* **the memory panel's effects**: the same four contrasts on each map of the panel for agents
+  with one step of memory (``studies/one_step/panel.py``, ``channel_effects_with_memory``),
+  tested as the panel's are; a family of its own, since its agents are separate training runs;
 * **the interventions**: every replacement of a channel at test time (another episode's value
   at the same step, a random step, shuffled in time, constants), on the main experiment's map
   and on every panel map, for each configuration that sees the channel.
@@ -43,6 +46,7 @@ SEED = 0
 RESULTS = Path(__file__).resolve().parent.parent / "results"
 PANEL = RESULTS / "studies" / "panel" / "panel.json"
 INTERVENTIONS = RESULTS / "evaluation_results" / "interventions.json"
+MEMORY_PANEL = RESULTS / "studies" / "memory_panel" / "memory_panel.json"
 OUTPUT = RESULTS / "studies" / "panel" / "multiplicity.json"
 CONDITION = "eps"
 # The (configuration, channel) pairs whose channel is replaced at test time.
@@ -126,6 +130,32 @@ def panel_effects(panel: dict[str, Any], alpha: float = ALPHA) -> dict[str, Any]
     return {"summary": summary, "maps": maps}
 
 
+def memory_panel_effects(memory_panel: dict[str, Any], alpha: float = ALPHA) -> dict[str, Any]:
+    """The memory panel's effect family, built as ``panel_effects``: the per-seed success of
+    the agents with one step of memory, each effect's coefficients from
+    ``channel_effects_with_memory``; maps.<seed>.<effect> with mean, p, p_holm, rejected and
+    verdict, and the family summary."""
+    tests, maps = [], {}
+    for key, entry in memory_panel["maps"].items():
+        found_at = entry["conditions"][CONDITION]
+        rates = {mode: s["memory"]["per_seed"] for mode, s in found_at["success"].items()}
+        maps[key] = {}
+        for effect, found in found_at["channel_effects_with_memory"].items():
+            test = {
+                "mean": found["mean"],
+                "uncorrected_established": found["established"],
+                "p": bootstrap_p_value(rates, found["coefficients"]),
+            }
+            maps[key][effect] = test
+            tests.append(test)
+    summary = _family(tests, alpha)
+    for effects in maps.values():
+        for test in effects.values():
+            sign = "gain" if test["mean"] > 0 else "loss"
+            test["verdict"] = sign if test["rejected"] else "unclear"
+    return {"summary": summary, "maps": maps}
+
+
 def _probe_tests(deltas: dict[str, dict]) -> dict[str, dict[str, Any]]:
     """One test per replacement kind from its per-seed changes of success."""
     return {
@@ -182,8 +212,13 @@ def interventions_family(
     return {"summary": summary, "cases": cases}
 
 
-def multiplicity(panel: dict[str, Any], interventions: dict[str, Any]) -> dict[str, Any]:
-    return {
+def multiplicity(
+    panel: dict[str, Any],
+    interventions: dict[str, Any],
+    memory_panel: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The families' tests; the memory panel's family only when its results are given."""
+    result = {
         "protocol": {
             "correction": "Holm (step-down), family-wise error rate",
             "alpha": ALPHA,
@@ -195,6 +230,9 @@ def multiplicity(panel: dict[str, Any], interventions: dict[str, Any]) -> dict[s
         "panel_effects": panel_effects(panel),
         "interventions": interventions_family(panel, interventions),
     }
+    if memory_panel is not None:
+        result["memory_panel_effects"] = memory_panel_effects(memory_panel)
+    return result
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -205,10 +243,15 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     panel = json.loads(PANEL.read_text(encoding="utf-8"))
     interventions = json.loads(INTERVENTIONS.read_text(encoding="utf-8"))
-    result = multiplicity(panel, interventions)
+    memory_panel = (
+        json.loads(MEMORY_PANEL.read_text(encoding="utf-8")) if MEMORY_PANEL.exists() else None
+    )
+    result = multiplicity(panel, interventions, memory_panel)
     write_json_atomic(args.output, result)
     plot_effects(PANEL.parent / "panel_effects.png", panel, result["panel_effects"]["maps"])
-    for family in ("panel_effects", "interventions"):
+    for family in ("panel_effects", "interventions", "memory_panel_effects"):
+        if family not in result:
+            continue
         s = result[family]["summary"]
         print(
             f"{family}: {s['rejected']} of {s['tests']} rejected after Holm "

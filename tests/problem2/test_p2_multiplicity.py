@@ -54,8 +54,58 @@ def test_the_corrected_verdict_uses_only_rejected_losses() -> None:
 def test_the_committed_file_is_what_the_script_computes_from_the_committed_results() -> None:
     panel = json.loads((RESULTS / "studies" / "panel" / "panel.json").read_text("utf-8"))
     probes = json.loads((RESULTS / "evaluation_results" / "interventions.json").read_text("utf-8"))
+    memory_panel = json.loads(multiplicity.MEMORY_PANEL.read_text("utf-8"))
     committed = json.loads(multiplicity.OUTPUT.read_text("utf-8"))
-    assert json.loads(json.dumps(multiplicity.multiplicity(panel, probes))) == committed
+    computed = multiplicity.multiplicity(panel, probes, memory_panel)
+    assert json.loads(json.dumps(computed)) == committed
     effects = committed["panel_effects"]["summary"]
     assert effects["tests"] == 4 * len(panel["maps"])
     assert effects["rejected"] <= effects["rejected_uncorrected"]
+
+
+def _memory_map(rates: dict[str, list[float]]) -> dict:
+    coefficients = {
+        "message": {"comm": 1.0, "independent": -1.0},
+        "distance": {"distance": 1.0, "independent": -1.0},
+    }
+    return {
+        "conditions": {
+            "eps": {
+                "success": {
+                    m: {"memory": {"per_seed": r}, "memoryless": {}} for m, r in rates.items()
+                },
+                "channel_effects_with_memory": {
+                    e: {
+                        "coefficients": c,
+                        "mean": sum(sum(rates[g]) / len(rates[g]) * w for g, w in c.items()),
+                        "established": False,
+                    }
+                    for e, c in coefficients.items()
+                },
+            }
+        }
+    }
+
+
+def test_the_memory_panel_is_a_family_of_its_own_tested_on_the_memory_agents_rates() -> None:
+    clear = {
+        "independent": [0.1, 0.12, 0.11],
+        "comm": [0.9, 0.92, 0.91],
+        "distance": [0.1, 0.12, 0.11],
+    }
+    noise = {"independent": [0.5, 0.6, 0.4], "comm": [0.55, 0.45, 0.6], "distance": [0.5, 0.6, 0.4]}
+    family = multiplicity.memory_panel_effects(
+        {"maps": {"1": _memory_map(clear), "2": _memory_map(noise)}}
+    )
+    assert family["summary"]["tests"] == 4
+    assert family["maps"]["1"]["message"]["verdict"] == "gain"
+    assert family["maps"]["1"]["distance"]["verdict"] == "unclear"  # identical rates: p = 1
+    assert family["maps"]["2"]["message"]["verdict"] == "unclear"
+    # the family leaves the other two untouched and is absent without its results
+    panel = json.loads((RESULTS / "studies" / "panel" / "panel.json").read_text("utf-8"))
+    probes = json.loads((RESULTS / "evaluation_results" / "interventions.json").read_text("utf-8"))
+    without = multiplicity.multiplicity(panel, probes)
+    assert "memory_panel_effects" not in without
+    committed = json.loads(multiplicity.OUTPUT.read_text("utf-8"))
+    assert committed["memory_panel_effects"]["summary"]["tests"] == 48
+    assert json.loads(json.dumps(without["panel_effects"])) == committed["panel_effects"]

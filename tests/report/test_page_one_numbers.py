@@ -74,6 +74,17 @@ def page_one() -> str:
     return " ".join(text.split())
 
 
+@functools.cache
+def page_one_heading() -> str:
+    """The answer's bold opening paragraph as typeset (it precedes the <answer> block)."""
+    text = plain_text(
+        json.loads(typst.query(str(ROOT / build.MAIN), "<answer-heading>", **build.typst_options()))
+    )
+    for odd, plain in (("\u2212", "-"), ("\u00a0", " "), ("\u202f", " ")):
+        text = text.replace(odd, plain)
+    return " ".join(text.split())
+
+
 def test_the_assignments_map_rates_come_from_performance_json() -> None:
     main = read(RESULTS / "evaluation_results" / "performance.json")["experiments"]["main"]
     rates = [main["modes"][m]["eps"]["success_rate"]["mean"] for m in MODES]
@@ -117,8 +128,9 @@ def test_the_stand_in_numbers_come_from_why_json() -> None:
     )
     why = read(STUDIES / "memory_panel" / "why" / "why.json")["maps"][top]
     stand_in = why["memoryless_channel_stand_ins_eps"]["distance"]
-    for kind in ("same_step", "shuffled_time", "constant_mean"):
-        assert signed(stand_in[kind]["mean"]) in page_one()
+    assert (
+        f"distance changes success by {signed(stand_in['same_step']['mean'])} points" in page_one()
+    )
 
 
 def test_the_memory_numbers_come_from_memory_panel_json() -> None:
@@ -150,17 +162,27 @@ def test_the_unseen_maps_numbers_come_from_their_studies() -> None:
     one_step = read(STUDIES / "one_step_unseen" / "unseen.json")["held_out"]
     assert pct(one_step["modes"]["independent"]["eps"]["mean"], 0) in page_one()
     listener = read(LISTENER)["held_out"]
-    for found in (one_step, listener):
-        assert points_ci(found["differences"]["full-independent"]["eps"]) in page_one()
-    probes = listener["modes"]["full"]["interventions_delta_success"]
-    distance, message = (
-        fixed(-100 * probes[k]["eps"]["mean"], 1)
-        for k in ("distance.same_step", "message.same_step")
+    # what the message costs on top of what the configuration without it sees
+    unseen = one_step["differences"]
+    assert f"full - distance is {points_ci(unseen['full-distance']['eps'])}" in page_one()
+    assert f"comm - independent {points_ci(unseen['comm-independent']['eps'])}" in page_one()
+    costs = [-100 * unseen[k]["eps"]["mean"] for k in ("full-distance", "comm-independent")]
+    assert f"costs one-step agents {fixed(min(costs), 0)} to {fixed(max(costs), 0)} points" in (
+        page_one_heading()
     )
-    assert f"distance costs them {distance} points" in page_one()
-    assert f"message {message}" in page_one()
-    assert points_ci(one_step["differences"]["comm-independent"]["eps"]) in page_one()
-    assert pct(pool["heuristics"]["beacon_explorer"]["mean"], 0) in page_one()
+    assert f"distance alone, {points_ci(unseen['distance-independent']['eps'])}" in page_one()
+    # at two million steps: the contrasts that isolate each channel
+    gaps = listener["differences"]
+    assert points_ci(gaps["full-independent"]["eps"]) in page_one()
+    assert f"distance - independent is {points_ci(gaps['distance-independent']['eps'])}" in (
+        page_one()
+    )
+    assert f"full - distance is {points_ci(gaps['full-distance']['eps'])}" in page_one()
+    assert f"comm - independent {points_ci(gaps['comm-independent']['eps'])}" in page_one()
+    probes = listener["modes"]["full"]["interventions_delta_success"]
+    distance = fixed(-100 * probes["distance.same_step"]["eps"]["mean"], 1)
+    assert f"distance costs full pairs {distance} points" in page_one()
+    assert pct(pool["heuristics"]["beacon_explorer"]["mean"]) in page_one()
 
 
 def test_the_reward_condition_comes_from_reward_study_json() -> None:
@@ -183,7 +205,7 @@ def test_the_listeners_comparisons_come_from_its_held_out_study() -> None:
     independent agents of any training (the highest success among best_independent)."""
     study = read(LISTENER)
     modes = study["held_out"]["modes"]
-    assert f"({pct(modes['full']['eps']['mean'])}) ahead of" in page_one()
+    assert f"({pct(modes['full']['eps']['mean'])}) lead" in page_one()
     assert f"({pct(modes['independent']['eps']['mean'])})" in page_one()
     gaps = study["held_out"]["differences"]["full-independent"]["eps"]["per_seed"]
     ahead = sum(g > 0 for g in gaps)
