@@ -343,7 +343,9 @@ class RecurrentTrainer(PoolTrainer):
         return memory_policy((self.online, self.online), env, epsilon, EVAL_SEED)
 
     def policy(self, epsilon: float = 0.0, seed: int = EVAL_SEED) -> Any:
-        raise NotImplementedError("a memory agent needs its environment: use memory_policy")
+        raise TypeError(
+            "a memory agent's policy needs its environment: use evaluation_policy(env, eps)"
+        )
 
     def export_agent(self, index: int, path: Path) -> Path:
         """Write agent ``index`` by the memory contract (both agents share the weights)."""
