@@ -88,10 +88,12 @@ def check_output_dir(
     code = code_folder(root)
     if code is not None:
         named = code.relative_to(REPOSITORY).as_posix()  # e.g. problem2/analysis
-        where = (
-            f"is the code folder {named}" if code == root else f"lies in the code folder {named}"
-        )
-        where = "is the repository's root (code)" if code == REPOSITORY else where
+        if code == REPOSITORY:
+            where = "is the repository's root (code)"
+        elif code == root:
+            where = f"is the code folder {named}"
+        else:
+            where = f"lies in the code folder {named}"
         raise FolderError(
             f"{where}: choose a folder for results, e.g. --output_dir my_run from problem2/ or "
             "a folder under problem2/results/"
@@ -263,7 +265,8 @@ def record_batch(
     identity: dict,
     select_by: str,
 ) -> None:
-    """After every run, the batch's record: the wall times (``timing.json``), each mode's best
+    """After every run, the batch's record: the wall times (``timing.json``, each run's
+    ``seconds`` taken out of ``finals``), each mode's best
     pair copied to ``<mode>_agent_{A,B}.pt`` and, last, the manifest (``identity``, each run's
     selection results and model files with their sha256, which evaluate.py checks)."""
     models, logs = staging / "agent_models", staging / "training_logs"
