@@ -91,6 +91,7 @@ def plot_policies(results: list[dict[str, Any]]) -> Figure:
             vmax=float(all_values.max()),
             compact=True,
             detours=result["detour_states"],
+            value_font=10,
         )
     for ax in axes[:, 1:].flat:
         ax.set_ylabel("")

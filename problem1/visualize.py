@@ -64,6 +64,7 @@ class GridWorldVisualizer:
         vmax: float | None = None,
         compact: bool = False,
         detours: Iterable[int] = (),
+        value_font: float = VALUE_FONT,
     ):
         """Draw one grid on ``ax``: optional value heatmap (S,), optional arrows (S,).
 
@@ -71,7 +72,7 @@ class GridWorldVisualizer:
         by :meth:`add_cell_legend`), the ``detours`` states by a dashed black-and-white frame.
         Arrows and values are black on light cells and white on dark ones. ``compact``: a
         small panel of a multi-panel figure (thinner lines, one decimal, smaller labels).
-        Returns the heatmap image (for a colour bar), or None.
+        ``value_font``: the size of the values written in the cells, in points. Returns the heatmap image (for a colour bar), or None.
         """
         n = self.grid_size
         image = None
@@ -81,7 +82,9 @@ class GridWorldVisualizer:
             )
             image = ax.imshow(grid, cmap="viridis", vmin=vmin, vmax=vmax)
             if annotate:  # above the arrow, if there is one
-                self._annotate_values(ax, grid, image, compact, -0.18 if policy is not None else 0)
+                self._annotate_values(
+                    ax, grid, image, compact, -0.18 if policy is not None else 0, value_font
+                )
         else:
             ax.imshow(np.zeros((n, n)), cmap="Greys", vmin=0, vmax=1)
         for r, c in self.env.obstacles:
@@ -107,8 +110,8 @@ class GridWorldVisualizer:
                 ax.add_patch(self._frame(r, c, 0.42, CELL_STYLE[kind][0], 2 if compact else 3))
         for state in detours:  # along the cell's edge, outside the coloured frames
             r, c = divmod(int(state), n)
-            ax.add_patch(self._frame(r, c, 0.475, "white", 1.8))
-            ax.add_patch(self._frame(r, c, 0.475, "black", 1.8, linestyle=(0, (2, 2))))
+            ax.add_patch(self._frame(r, c, 0.475, "white", 2.8))
+            ax.add_patch(self._frame(r, c, 0.475, "black", 2.8, linestyle=(0, (2, 2))))
         if policy is not None:
             shift = 0.0 if values is None or not annotate else 0.2
             self._draw_arrows(ax, np.asarray(policy), image, shift, compact)
@@ -166,7 +169,13 @@ class GridWorldVisualizer:
         return "black" if (luminance + 0.05) / 0.05 >= 1.05 / (luminance + 0.05) else "white"
 
     def _annotate_values(
-        self, ax: Axes, grid: np.ma.MaskedArray, image, compact: bool, shift: float
+        self,
+        ax: Axes,
+        grid: np.ma.MaskedArray,
+        image,
+        compact: bool,
+        shift: float,
+        value_font: float = VALUE_FONT,
     ) -> None:
         for (r, c), value in np.ndenumerate(grid.filled(np.nan)):
             if np.isnan(value):
@@ -177,7 +186,7 @@ class GridWorldVisualizer:
                 f"{value:.1f}" if compact else f"{value:.2f}",
                 ha="center",
                 va="center",
-                fontsize=VALUE_FONT,
+                fontsize=value_font,
                 color=self._contrast_colour(image, value),
             )
 
@@ -266,17 +275,20 @@ class GridWorldVisualizer:
         gamma: float = 0.95,
         epsilon: float | None = 1e-4,
     ) -> Figure:
-        """Two panels. Left: value iteration's sup-norm change per sweep (log scale) with the
-        contraction bound ``||x_k - x_(k-1)|| <= gamma^(k-1) ||x_1 - x_0||`` and the stopping
-        threshold. Right: Q-iteration's change divided by value iteration's, sweep by sweep
-        (the two curves would lie on top of each other on the left: max_a Q_k = V_k from zero
-        starts, and QI's change runs over every (s, a))."""
+        """Two panels. Left: the sup-norm change per sweep (log scale) of value iteration and
+        of Q-iteration (whose change runs over every (s, a)), with the contraction bound
+        ``||x_k - x_(k-1)|| <= gamma^(k-1) ||x_1 - x_0||`` and the stopping threshold. Right:
+        Q-iteration's change divided by value iteration's, sweep by sweep (the two curves lie
+        close together on the left)."""
         fig = Figure(figsize=(6.3, 2.5), layout="constrained")
         left, right = fig.subplots(1, 2)
         vi = np.asarray(vi_history, dtype=float)
         qi = np.asarray(qi_history, dtype=float)
         sweeps = np.arange(1, len(vi) + 1)
         left.semilogy(sweeps, vi, "o-", ms=3, lw=1.0, color="#1f77b4", label="value iteration")
+        left.semilogy(
+            np.arange(1, len(qi) + 1), qi, "s--", ms=2.5, lw=0.9, color="#ff7f0e", label="Q-iteration"
+        )
         bound_sweeps = np.arange(1, max(len(vi), len(qi)) + 1)
         left.semilogy(
             bound_sweeps,
@@ -287,8 +299,8 @@ class GridWorldVisualizer:
         )
         if epsilon is not None:
             left.axhline(epsilon, color="black", lw=0.8, label=rf"$\varepsilon$ = {epsilon:g}")
-        left.set_ylabel(r"change $\max|V_k - V_{k-1}|$", fontsize=SMALL_FONT)
-        left.set_title(f"Value iteration ({len(vi)} sweeps)", fontsize=VALUE_FONT)
+        left.set_ylabel("sup-norm change per sweep", fontsize=SMALL_FONT)
+        left.set_title(f"VI ({len(vi)} sweeps) and QI ({len(qi)} sweeps)", fontsize=VALUE_FONT)
         shared = min(len(vi), len(qi))
         ratio = qi[:shared] / np.where(vi[:shared] > 0, vi[:shared], np.nan)
         right.plot(np.arange(1, shared + 1), ratio, "s-", ms=3, lw=1.0, color="#ff7f0e")
@@ -299,7 +311,7 @@ class GridWorldVisualizer:
             ax.set_xlabel(r"sweep $k$", fontsize=SMALL_FONT)
             ax.tick_params(labelsize=SMALL_FONT)
             ax.grid(True, which="major", alpha=0.3)
-        fig.legend(loc="outside lower center", ncols=3, fontsize=SMALL_FONT, frameon=False)
+        fig.legend(loc="outside lower center", ncols=4, fontsize=SMALL_FONT, frameon=False)
         return fig
 
     def create_comparison_figure(
