@@ -110,37 +110,35 @@ def _family(tests: list[dict[str, Any]], alpha: float) -> dict[str, Any]:
 def panel_effects(panel: dict[str, Any], alpha: float = ALPHA) -> dict[str, Any]:
     """The panel's effect family: maps.<seed>.<effect> with mean, p, p_holm, rejected and
     verdict (gain or loss where rejected, else unclear), and the family summary."""
-    tests, maps = [], {}
-    for key, entry in panel["maps"].items():
-        rates = {mode: s[CONDITION]["per_seed"] for mode, s in entry["success"].items()}
-        maps[key] = {}
-        for effect, found in entry["effects"][CONDITION].items():
-            test = {
-                "mean": found["mean"],
-                "uncorrected_established": found["established"],
-                "p": bootstrap_p_value(rates, found["coefficients"]),
-            }
-            maps[key][effect] = test
-            tests.append(test)
-    summary = _family(tests, alpha)
-    for effects in maps.values():
-        for test in effects.values():
-            sign = "gain" if test["mean"] > 0 else "loss"
-            test["verdict"] = sign if test["rejected"] else "unclear"
-    return {"summary": summary, "maps": maps}
+    per_map = {
+        key: (
+            {mode: s[CONDITION]["per_seed"] for mode, s in entry["success"].items()},
+            entry["effects"][CONDITION],
+        )
+        for key, entry in panel["maps"].items()
+    }
+    return _effect_family(per_map, alpha)
 
 
 def memory_panel_effects(memory_panel: dict[str, Any], alpha: float = ALPHA) -> dict[str, Any]:
     """The memory panel's effect family, built as ``panel_effects``: the per-seed success of
     the agents with one step of memory, each effect's coefficients from
-    ``channel_effects_with_memory``; maps.<seed>.<effect> with mean, p, p_holm, rejected and
-    verdict, and the family summary."""
-    tests, maps = [], {}
+    ``channel_effects_with_memory``."""
+    per_map = {}
     for key, entry in memory_panel["maps"].items():
         found_at = entry["conditions"][CONDITION]
         rates = {mode: s["memory"]["per_seed"] for mode, s in found_at["success"].items()}
+        per_map[key] = (rates, found_at["channel_effects_with_memory"])
+    return _effect_family(per_map, alpha)
+
+
+def _effect_family(per_map: dict[str, tuple[dict, dict]], alpha: float) -> dict[str, Any]:
+    """One Holm family over every map's effects: ``per_map`` maps a map's key to (per-seed
+    success by mode, its effects with mean, established and coefficients)."""
+    tests, maps = [], {}
+    for key, (rates, effects) in per_map.items():
         maps[key] = {}
-        for effect, found in found_at["channel_effects_with_memory"].items():
+        for effect, found in effects.items():
             test = {
                 "mean": found["mean"],
                 "uncorrected_established": found["established"],
