@@ -72,7 +72,8 @@ class GridWorldVisualizer:
         by :meth:`add_cell_legend`), the ``detours`` states by a dashed black-and-white frame.
         Arrows and values are black on light cells and white on dark ones. ``compact``: a
         small panel of a multi-panel figure (thinner lines, one decimal, smaller labels).
-        ``value_font``: the size of the values written in the cells, in points. Returns the heatmap image (for a colour bar), or None.
+        ``value_font``: the size of the values written in the cells, in points. Returns the
+        heatmap image (for a colour bar), or None.
         """
         n = self.grid_size
         image = None
@@ -287,7 +288,13 @@ class GridWorldVisualizer:
         sweeps = np.arange(1, len(vi) + 1)
         left.semilogy(sweeps, vi, "o-", ms=3, lw=1.0, color="#1f77b4", label="value iteration")
         left.semilogy(
-            np.arange(1, len(qi) + 1), qi, "s--", ms=2.5, lw=0.9, color="#ff7f0e", label="Q-iteration"
+            np.arange(1, len(qi) + 1),
+            qi,
+            "s--",
+            ms=2.5,
+            lw=0.9,
+            color="#ff7f0e",
+            label="Q-iteration",
         )
         bound_sweeps = np.arange(1, max(len(vi), len(qi)) + 1)
         left.semilogy(
