@@ -159,9 +159,9 @@ def plot(path: Path, results: dict) -> None:
     recipe = results["one_step_recipe_held_out"]
     gru = unseen.read_json(gru_study.STUDY_DIR / "memory.json")
     arms = [
-        ("recipe", "#dd8452", {m: s["eps"] for m, s in recipe.items()}),
+        ("one step", "#dd8452", {m: s["eps"] for m, s in recipe.items()}),
         (
-            "trained to listen",
+            "one step, with the changes",
             "#55a868",
             {m: s["eps"] for m, s in results["held_out"]["modes"].items()},
         ),
