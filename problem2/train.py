@@ -196,10 +196,11 @@ RETURN_NAMES = {  # reward_mode -> the return the curves show when no table retu
 def plot_training_curves(
     logs_dir: Path, modes: list[str], seeds: list[int], settings: dict[str, Any]
 ) -> None:
-    """Validation success and return at ε = 0.05 against env steps, the modes overlaid: the
-    mean over seeds and the interquartile band, 6.5 in wide as the report prints it. The
-    return is under the assignment's table (+10 / +2 / −0.1) where the logs hold it, else
-    under the reward the batch learnt from (``settings["reward_mode"]``), named on the axis."""
+    """Validation success and return at ε = 0.05 and the TD loss against env steps, the modes
+    overlaid: the mean over seeds and the interquartile band, 6.5 in wide as the report prints
+    it. The return is under the assignment's table (+10 / +2 / −0.1) where the logs hold it,
+    else under the reward the batch learnt from (``settings["reward_mode"]``), named on the
+    axis; the loss is the mean of the updates since the previous evaluation (log scale)."""
     from matplotlib.figure import Figure  # here: a worker process never needs matplotlib
 
     logs = {m: [read_csv(logs_dir / f"{m}_seed{s}.csv") for s in seeds] for m in modes}
@@ -208,22 +209,32 @@ def plot_training_curves(
     panels = (
         ("eval_success_eps", "success rate"),
         ("eval_return_table_eps" if table else "eval_return_eps", f"return ({reward})"),
+        ("loss", "TD loss (training)"),
     )
-    fig = Figure(figsize=(6.5, 2.7), layout="constrained")
-    for ax, (key, label) in zip(fig.subplots(1, 2), panels, strict=True):
+    fig = Figure(figsize=(6.5, 2.5), layout="constrained")
+    for ax, (key, label) in zip(fig.subplots(1, 3), panels, strict=True):
         for mode, runs in logs.items():
             length = min(len(log) for log in runs)
             steps = np.array([row["env_steps"] for row in runs[0][:length]]) / 1000
             values = np.array([[row[key] for row in log[:length]] for log in runs])
             low, high = np.percentile(values, [25, 75], axis=0)
-            ax.fill_between(steps, low, high, color=MODE_COLOURS[mode], alpha=0.2, linewidth=0)
-            ax.plot(steps, values.mean(axis=0), color=MODE_COLOURS[mode], lw=1.6, label=mode)
-        ax.set_xlabel("environment steps (thousands)", fontsize=9)
+            ax.fill_between(steps, low, high, color=MODE_COLOURS[mode], alpha=0.3, linewidth=0)
+            ax.plot(steps, values.mean(axis=0), color=MODE_COLOURS[mode], lw=1.4, label=mode)
+        if key == "loss":
+            ax.set_yscale("log")
+        ax.set_xlabel("env steps (thousands)", fontsize=9)
         ax.set_ylabel(label, fontsize=9)
         ax.grid(True, alpha=0.3)
         ax.tick_params(labelsize=8)
     title = f"mean of {len(seeds)} seeds\n(band: middle half)"
-    ax.legend(fontsize=8, frameon=False, title=title, title_fontsize=8)
+    fig.legend(
+        *ax.get_legend_handles_labels(),
+        loc="outside right",
+        fontsize=8,
+        frameon=False,
+        title=title,
+        title_fontsize=8,
+    )
     with safety.temporary_path_for(logs_dir / "training_curves.png") as temporary:
         fig.savefig(temporary, format="png", dpi=300)  # printed 6.5 in wide: 300 ppi
 
