@@ -23,6 +23,7 @@ from environment import ACTION_NAMES, MOVES, GridWorldEnv
 from file_io import atomic_save_figure, make_console_safe, remove_stale_temporaries, shown
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure  # figures without pyplot: no GUI backend, no global state
+from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
 
 CELL_STYLE = {  # frame colour, legend entry
@@ -32,6 +33,13 @@ CELL_STYLE = {  # frame colour, legend entry
 }
 GOAL_FILL = {"facecolor": "0.88", "edgecolor": "0.55", "hatch": "//"}  # drawn and in the legend
 DETOUR_LABEL = "detour: a worse move without drift"
+# a white diamond edged in black, readable on every colour of the scale
+DETOUR_MARK = {
+    "marker": "D",
+    "markersize": 4.5,
+    "markerfacecolor": "white",
+    "markeredgecolor": "black",
+}
 VALUE_FONT = 9
 SMALL_FONT = 8  # the smallest text in any figure, in points at the width the report prints it
 
@@ -69,7 +77,8 @@ class GridWorldVisualizer:
         """Draw one grid on ``ax``: optional value heatmap (S,), optional arrows (S,).
 
         Obstacles are black; the goal, penalty and start cells are framed in colour (explained
-        by :meth:`add_cell_legend`), the ``detours`` states by a dashed black-and-white frame.
+        by :meth:`add_cell_legend`), the ``detours`` states by a white diamond in the lower
+        right corner.
         Arrows and values are black on light cells and white on dark ones. ``compact``: a
         small panel of a multi-panel figure (thinner lines, one decimal, smaller labels).
         ``value_font``: the size of the values written in the cells, in points. Returns the
@@ -109,10 +118,9 @@ class GridWorldVisualizer:
         for kind, cells in special:
             for r, c in cells:
                 ax.add_patch(self._frame(r, c, 0.42, CELL_STYLE[kind][0], 2 if compact else 3))
-        for state in detours:  # along the cell's edge, outside the coloured frames
+        for state in detours:  # in the lower right corner, clear of the value and the arrow
             r, c = divmod(int(state), n)
-            ax.add_patch(self._frame(r, c, 0.475, "white", 2.8))
-            ax.add_patch(self._frame(r, c, 0.475, "black", 2.8, linestyle=(0, (2, 2))))
+            ax.plot(c + 0.34, r + 0.34, clip_on=False, **DETOUR_MARK)
         if policy is not None:
             shift = 0.0 if values is None or not annotate else 0.2
             self._draw_arrows(ax, np.asarray(policy), image, shift, compact)
@@ -135,7 +143,7 @@ class GridWorldVisualizer:
 
     def add_cell_legend(self, fig: Figure, detours: bool = False) -> None:
         """Legend of the cells drawn as :meth:`draw_grid` draws them (the goal's grey hatching
-        inside its frame, the other coloured frames, obstacles, the detour frame), below the
+        inside its frame, the other coloured frames, obstacles, the detour mark), below the
         figure."""
         handles, labels = [], []
         for kind, (colour, label) in CELL_STYLE.items():
@@ -146,7 +154,7 @@ class GridWorldVisualizer:
         handles.append(Patch(facecolor="black"))
         labels.append("obstacle")
         if detours:
-            handles.append(Patch(facecolor="none", edgecolor="black", ls=(0, (2, 2)), lw=2))
+            handles.append(Line2D([], [], linestyle="none", **DETOUR_MARK))
             labels.append(DETOUR_LABEL)
         fig.legend(
             handles,
