@@ -202,6 +202,7 @@ def plot_training_curves(
     else under the reward the batch learnt from (``settings["reward_mode"]``), named on the
     axis; the loss is the mean of the updates since the previous evaluation (log scale)."""
     from matplotlib.figure import Figure  # here: a worker process never needs matplotlib
+    from matplotlib.ticker import MaxNLocator
 
     logs = {m: [read_csv(logs_dir / f"{m}_seed{s}.csv") for s in seeds] for m in modes}
     table = all("eval_return_table_eps" in log[0] for runs in logs.values() for log in runs)
@@ -212,7 +213,7 @@ def plot_training_curves(
         ("loss", "TD loss (training)"),
     )
     fig = Figure(figsize=(6.5, 2.5), layout="constrained")
-    for ax, (key, label) in zip(fig.subplots(1, 3), panels, strict=True):
+    for ax, (key, label) in zip(fig.subplots(1, 3, sharex=True), panels, strict=True):
         for mode, runs in logs.items():
             length = min(len(log) for log in runs)
             steps = np.array([row["env_steps"] for row in runs[0][:length]]) / 1000
@@ -222,6 +223,7 @@ def plot_training_curves(
             ax.plot(steps, values.mean(axis=0), color=MODE_COLOURS[mode], lw=1.4, label=mode)
         if key == "loss":
             ax.set_yscale("log")
+        ax.xaxis.set_major_locator(MaxNLocator(4))
         ax.set_xlabel("env steps (thousands)", fontsize=9)
         ax.set_ylabel(label, fontsize=9)
         ax.grid(True, alpha=0.3)
