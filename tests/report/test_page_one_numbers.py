@@ -211,5 +211,5 @@ def test_the_listeners_comparisons_come_from_its_held_out_study() -> None:
     words = f"all {ahead}" if ahead == len(gaps) else f"{ahead} of {len(gaps)}"
     assert f"ahead on {words} seeds" in page_one()
     best = max(study["best_independent"].values(), key=lambda b: b["success"]["eps"]["mean"])
-    assert f"any training ({pct(best['success']['eps']['mean'])})" in page_one()
+    assert f"any training ({pct(best['success']['eps']['mean'])}, seeds" in page_one()
     assert f"full − those is {points_ci(best['full_minus']['eps'])}".replace("−", "-") in page_one()
