@@ -192,12 +192,17 @@ class GridWorldVisualizer:
             ax.text(
                 c,
                 r + shift,
-                f"{value:.1f}" if compact else f"{value:.2f}",
+                self._compact_label(value) if compact else f"{value:.2f}",
                 ha="center",
                 va="center",
                 fontsize=value_font,
                 color=self._contrast_colour(image, value),
             )
+
+    @staticmethod
+    def _compact_label(value: float) -> str:
+        """One decimal, or none from 9.95 up, so that no label is wider than a cell."""
+        return f"{value:.0f}" if abs(value) >= 9.95 else f"{value:.1f}"
 
     def _draw_arrows(
         self, ax: Axes, policy: np.ndarray, image, shift: float, compact: bool

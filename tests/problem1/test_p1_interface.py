@@ -144,3 +144,11 @@ def test_visualizer_methods_return_figures(env: GridWorldEnv) -> None:
     ]
     assert [len(f.axes) >= 1 for f in figures] == [True] * 5
     assert len(figures[2].axes) == 5  # four action panels and a colour bar
+
+
+@pytest.mark.parametrize(
+    ("value", "label"), [(9.2, "9.2"), (9.94, "9.9"), (9.96, "10"), (-5.0, "-5.0")]
+)
+def test_compact_value_labels_drop_the_decimal_from_9_95_up(value: float, label: str) -> None:
+    """Fig. 3's small panels print one decimal, or none from 9.95 up ("10", not "10.0")."""
+    assert GridWorldVisualizer._compact_label(value) == label

@@ -178,7 +178,7 @@ def test_the_unseen_maps_numbers_come_from_their_studies() -> None:
     probes = listener["modes"]["full"]["interventions_delta_success"]
     distance = fixed(-100 * probes["distance.same_step"]["eps"]["mean"], 1)
     expected = f"(its value from another episode costs full pairs {distance} points)"
-    assert expected in (page_one())
+    assert expected in page_one()
 
 
 def test_the_listeners_long_run_stays_off_page_one() -> None:
