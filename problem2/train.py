@@ -208,7 +208,7 @@ def plot_training_curves(
     table = all("eval_return_table_eps" in log[0] for runs in logs.values() for log in runs)
     reward = "assignment's reward" if table else RETURN_NAMES[settings["reward_mode"]]
     panels = (
-        ("eval_success_eps", "success rate"),
+        ("eval_success_eps", "success (%)"),
         ("eval_return_table_eps" if table else "eval_return_eps", f"return ({reward})"),
         ("loss", "TD loss (training)"),
     )
@@ -218,6 +218,7 @@ def plot_training_curves(
             length = min(len(log) for log in runs)
             steps = np.array([row["env_steps"] for row in runs[0][:length]]) / 1000
             values = np.array([[row[key] for row in log[:length]] for log in runs])
+            values = 100 * values if key == "eval_success_eps" else values
             low, high = np.percentile(values, [25, 75], axis=0)
             ax.fill_between(steps, low, high, color=MODE_COLOURS[mode], alpha=0.3, linewidth=0)
             ax.plot(steps, values.mean(axis=0), color=MODE_COLOURS[mode], lw=1.4, label=mode)
