@@ -36,7 +36,7 @@ DETOUR_LABEL = "detour: a worse move without drift"
 # a white diamond edged in black, readable on every colour of the scale
 DETOUR_MARK = {
     "marker": "D",
-    "markersize": 4.5,
+    "markersize": 6,
     "markerfacecolor": "white",
     "markeredgecolor": "black",
 }
