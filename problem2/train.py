@@ -229,10 +229,11 @@ def plot_training_curves(
         ax.set_ylabel(label, fontsize=9)
         ax.grid(True, alpha=0.3)
         ax.tick_params(labelsize=8)
-    title = f"mean of {len(seeds)} seeds\n(band: middle half)"
+    title = f"mean of {len(seeds)} seeds (band: middle half)"
     fig.legend(
         *ax.get_legend_handles_labels(),
-        loc="outside right",
+        loc="outside upper center",
+        ncols=len(logs),
         fontsize=8,
         frameon=False,
         title=title,
