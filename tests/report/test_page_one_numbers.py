@@ -164,10 +164,8 @@ def test_the_unseen_maps_numbers_come_from_their_studies() -> None:
     assert f"comm - independent is {costs['comm-independent']} points" in page_one()
     assert f"full - distance {costs['full-distance']} points" in page_one()
     low, high = (-100 * unseen[k]["eps"]["mean"] for k in ("full-distance", "comm-independent"))
-    assert (
-        f"costs one-step agents {fixed(min(low, high), 0)} to {fixed(max(low, high), 0)} points"
-        in (page_one_heading())
-    )
+    costs = f"{fixed(min(low, high), 0)} to {fixed(max(low, high), 0)} points"
+    assert f"costs agents with one step of memory {costs}" in page_one_heading()
     distance = signed(unseen["distance-independent"]["eps"]["mean"])
     assert f"The distance alone ({distance} points) is" in page_one()
     # at two million steps: full against independent trained the same way
