@@ -209,7 +209,7 @@ def plot_training_curves(
     reward = "assignment's reward" if table else RETURN_NAMES[settings["reward_mode"]]
     panels = (
         ("eval_success_eps", "success (%)"),
-        ("eval_return_table_eps" if table else "eval_return_eps", f"return ({reward})"),
+        ("eval_return_table_eps" if table else "eval_return_eps", f"return\n({reward})"),
         ("loss", "TD loss (training)"),
     )
     fig = Figure(figsize=(6.5, 2.5), layout="constrained")

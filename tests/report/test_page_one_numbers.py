@@ -186,7 +186,7 @@ def test_the_listeners_comparisons_come_from_its_held_out_study() -> None:
     gap = best["full_minus"]["eps"]
     lead = gap["ci95"][0] > 0
     verdict = "excludes" if lead or gap["ci95"][1] < 0 else "includes"
-    expected = (
-        f"{'and beat' if lead else 'but do not beat'} the best independent agents of any training"
-    )
+    expected = f"{'and beat' if lead else 'but do not beat'} the best of the independent trainings"
     assert f"{expected} ({signed(gap['mean'])} points, an interval that {verdict} 0)" in page_one()
+    matched = signed(study["held_out"]["differences"]["full-independent"]["eps"]["mean"])
+    assert f"lead independent pairs trained the same way ({matched} points)" in page_one()
