@@ -285,13 +285,16 @@ HELD_OUT_HEADER = [
 
 
 def trace_record(trace: EpisodeTrace) -> dict[str, Any]:
-    """An episode shown in ``trajectories.png``: its outcome and each agent's cells as
-    [row, col], from the start to the last step."""
+    """An episode shown in ``trajectories.png``: its outcome, each agent's cells as [row, col]
+    from the start to the last step, and the message each sent at every step (3 decimals)."""
     return {
         "success": trace.success,
         "length": trace.length,
         "description": trace.description,
         "cells": {name: trace.positions[:, k].astype(int).tolist() for k, name in enumerate("AB")},
+        "messages": {
+            name: [round(float(m), 3) for m in trace.messages[:, k]] for k, name in enumerate("AB")
+        },
     }
 
 

@@ -170,7 +170,8 @@ def test_the_pipeline_writes_every_output(evaluated: tuple[dict, Path]) -> None:
 
 def test_the_episodes_shown_are_written_cell_by_cell(evaluated: tuple[dict, Path]) -> None:
     """trajectories.json holds the cells of the episodes trajectories.png draws: legal moves
-    (one cell or none per step), and a success ends with both agents on the target."""
+    (one cell or none per step), a success ends with both agents on the target, and each
+    agent's message at every step."""
     _, output = evaluated
     shown = json.loads((output / "trajectories.json").read_text("utf-8"))
     performance = json.loads((output / "performance.json").read_text("utf-8"))
@@ -184,6 +185,8 @@ def test_the_episodes_shown_are_written_cell_by_cell(evaluated: tuple[dict, Path
                 assert len(cells) == episode["length"] + 1 and set(steps) <= {0, 1}
             ends = [cells[-1] for cells in episode["cells"].values()]
             assert (ends == [shown["target"]] * 2) == episode["success"]
+            for sent in episode["messages"].values():  # one message per step, in [0, 1]
+                assert len(sent) == episode["length"] and all(0 <= m <= 1 for m in sent)
 
 
 def test_the_last_weights_are_tested_beside_the_selected_ones(
