@@ -10,7 +10,7 @@ REPORT_STAMP  := $(VENV)/.report-installed
 
 .PHONY: all problem1 problem2 studies beyond p2-baselines p2-main p2-studies p2-panel p2-map-pool \
 	p2-stability p2-memory p2-memory-levers p2-memory-panel p2-one-step-unseen p2-one-step-levers \
-	p2-memory-why p2-beacon p2-beacon-long p2-beacon-long-study p2-evaluate p2-multiplicity report \
+	p2-memory-why p2-clock p2-beacon p2-beacon-long p2-beacon-long-study p2-evaluate p2-multiplicity report \
 	test lint \
 	bench clean
 
@@ -68,7 +68,7 @@ studies: p2-main p2-studies p2-evaluate p2-panel p2-memory-panel
 ## the stability study, agents with memory (GRU, and one step) and the levers tried on them (each
 ## writes its own results; `make p2-evaluate` reads only the main experiment and `make studies`').
 beyond: p2-map-pool p2-stability p2-memory p2-memory-levers p2-one-step-unseen p2-one-step-levers \
-	p2-memory-why p2-beacon p2-beacon-long p2-beacon-long-study
+	p2-memory-why p2-clock p2-beacon p2-beacon-long p2-beacon-long-study
 
 p2-studies: $(RUNTIME_STAMP)
 	cd problem2 && for reward in per_step arrival; do \
@@ -143,6 +143,10 @@ p2-beacon-long-study: $(RUNTIME_STAMP)
 ## Why one step of memory is enough (reads the memory panel's agents; trains its ablations).
 p2-memory-why: $(RUNTIME_STAMP)
 	cd problem2 && $(PY) -m studies.one_step.why --train
+
+## A clock or any changing input? Memoryless agents whose distance is the step, or noise (trains both).
+p2-clock: $(RUNTIME_STAMP)
+	cd problem2 && $(PY) -m studies.one_step.clock --train
 
 ## The written report, report.pdf (at most 12 pages), and its companion report/studies.pdf (the
 ## studies in detail), both built from the result files (seconds). The cover's name and email are

@@ -54,6 +54,7 @@ OPTIONAL_INPUTS = {
     "panel-long": "problem2/results/studies/panel/long/panel_long.json",
     "memory-panel": "problem2/results/studies/memory_panel/memory_panel.json",
     "memory-why": "problem2/results/studies/memory_panel/why/why.json",
+    "clock": "problem2/results/studies/memory_panel/clock/clock.json",
     "one-step-unseen": "problem2/results/studies/one_step_unseen/unseen.json",
     "one-step-levers": "problem2/results/studies/one_step_unseen_levers/levers.json",
     "beacon-screen": "problem2/results/studies/beacon_around/beacon_around.json",

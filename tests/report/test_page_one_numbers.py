@@ -131,6 +131,23 @@ def test_the_stand_in_numbers_come_from_why_json() -> None:
     assert f"the distance on map {top} changes success by {changed} points" in page_one()
 
 
+def words(items: list[str]) -> str:
+    """lib.typ's ``join-words``: "a", "a and b", "a, b and c"."""
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def test_the_clock_controls_numbers_come_from_clock_json() -> None:
+    """Memoryless agents with noise in the distance's place against the distance, per map."""
+    study = read(STUDIES / "memory_panel" / "clock" / "clock.json")
+    maps = [str(k) for k in study["protocol"]["maps"]]
+    rate = {
+        n: words([pct(study["maps"][k]["success"][n]["eps"]["mean"], 0) for k in maps])
+        for n in ("noise", "distance")
+    }
+    expected = f"they succeed in {rate['noise']} on maps {words(maps)}, against {rate['distance']}"
+    assert expected in page_one()
+
+
 def test_the_memory_numbers_come_from_memory_panel_json() -> None:
     maps = read(STUDIES / "memory_panel" / "memory_panel.json")["maps"].values()
     with_memory = [

@@ -295,10 +295,15 @@ def summarise(entries: list[dict], episodes: int, shown: dict) -> dict:
     }
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(allow_abbrev=False, description=__doc__.split("\n\n")[0])
+def parse_args(
+    argv: list[str] | None,
+    description: str = __doc__.split("\n\n")[0],
+    train_help: str = "train the ablations' batches first",
+) -> argparse.Namespace:
+    """``--train``, ``--num_episodes`` and ``--workers``, checked (also the clock control's)."""
+    parser = argparse.ArgumentParser(allow_abbrev=False, description=description)
     add = parser.add_argument
-    add("--train", action="store_true", help="train the ablations' batches first")
+    add("--train", action="store_true", help=train_help)
     add("--num_episodes", type=int, default=1000, help="test episodes per seed (1..5000)")
     add("--workers", type=int, default=min(2, available_cores()), help="processes (1..64)")
     args = parser.parse_args(argv)
