@@ -34,6 +34,7 @@ GIVENS = {
     "0.995": "the course skeleton's epsilon decay",
     "99": "the level of the Monte-Carlo interval (summary.json's ci99)",
     "1979": "Holm 1979",
+    "1994": "Singh et al. 1994",
     "1999": "Ng et al. 1999",
     "2011": "Devlin and Kudenko 2011",
     "2015": "Mnih et al. 2015",
