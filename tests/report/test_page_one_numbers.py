@@ -144,7 +144,9 @@ def test_the_clock_controls_numbers_come_from_clock_json() -> None:
         n: words([pct(study["maps"][k]["success"][n]["eps"]["mean"], 0) for k in maps])
         for n in ("noise", "distance")
     }
-    expected = f"they succeed in {rate['noise']} on maps {words(maps)}, against {rate['distance']}"
+    expected = (
+        f"agents succeed in {rate['noise']} on maps {words(maps)}, against {rate['distance']}"
+    )
     assert expected in page_one()
 
 
