@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from studies.one_step.clock import ClockEnv, NoiseEnv
+from vector_env import DISTANCE_INDEX as DISTANCE
 from vector_env import VectorMultiAgentEnv
 
-DISTANCE = 10  # 3 x 3 window: 9 patch cells, the message, the distance
 STAY = 4
 
 

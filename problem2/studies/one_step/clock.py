@@ -26,7 +26,8 @@ from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 import numpy as np
 import torch
 import train
-from rollout import EVAL_SEED, run_episodes
+from analysis.stats import seed_statistics
+from rollout import EVAL_SEED
 from settings import TrainConfig
 from trainer import DQNTrainer
 from vector_env import VectorMultiAgentEnv
@@ -37,9 +38,9 @@ from studies.one_step.panel import (
     MEMORY_PANEL_DIR,
     SEEDS,
     memoryless_rates,
-    pair_policy,
     paired,
     read_batch,
+    successes,
 )
 from studies.one_step.why import MAPS
 from studies.panel import PANEL_DIR
@@ -58,21 +59,16 @@ class ClockEnv(VectorMultiAgentEnv):
         """The value (N,) that stands in for the distance, from each copy's step (N,)."""
         return steps / self.max_steps
 
-    @property
-    def distance_index(self) -> int:
-        """The distance's element of an observation: after the patch and the message."""
-        return self.obs_window**2 + 1
-
+    # The distance is an observation's last element, whatever the window (patch, message, distance).
     def current_observations(self) -> np.ndarray:
         obs = super().current_observations()
-        obs[:, :, self.distance_index] = self.replaced(self._steps)[:, None]
+        obs[:, :, -1] = self.replaced(self._steps)[:, None]
         return obs
 
     def step(self, actions: np.ndarray, messages: np.ndarray) -> tuple:
         obs, rewards, terminated, truncated, info = super().step(actions, messages)
-        at = self.distance_index
-        info["final_obs"][:, :, at] = self.replaced(info["steps"])[:, None]
-        obs[:, :, at] = self.replaced(self._steps)[:, None]  # a restarted copy's step is 0
+        info["final_obs"][:, :, -1] = self.replaced(info["steps"])[:, None]
+        obs[:, :, -1] = self.replaced(self._steps)[:, None]  # a restarted copy's step is 0
         return obs, rewards, terminated, truncated, info
 
 
@@ -96,11 +92,11 @@ class NoiseTrainer(DQNTrainer):
     vector_env_class = NoiseEnv
 
 
-VARIANTS = {"clock": (ClockTrainer, ClockEnv), "noise": (NoiseTrainer, NoiseEnv)}
+VARIANTS = {"clock": ClockTrainer, "noise": NoiseTrainer}  # each trains and tests in its env
 
 
 def train_variants(workers: int) -> None:
-    for variant, (trainer_class, _) in VARIANTS.items():
+    for variant, trainer_class in VARIANTS.items():
         for map_seed in MAPS:
             settings = dict(mode=MODE, map_seed=map_seed, seed=SEEDS[0], num_seeds=len(SEEDS))
             folder = CLOCK_DIR / variant / f"map{map_seed}"
@@ -112,17 +108,12 @@ def variant_rates(variant: str, map_seed: int, episodes: int) -> dict[str, list[
     """Per condition the success rate of each seed's pair (S,) in the variant's own env."""
     models_dir = CLOCK_DIR / variant / f"map{map_seed}" / "agent_models"
     grid, max_steps = read_batch(models_dir)
-    env_class = VARIANTS[variant][1]
+    env_class = VARIANTS[variant].vector_env_class
     rates: dict[str, list[float]] = {c: [] for c in CONDITIONS}
     for seed in SEEDS:
-        agents = tuple(
-            torch.jit.load(str(models_dir / f"{MODE}_seed{seed}_agent_{a}.pt")) for a in "AB"
-        )
-        for condition, epsilon in CONDITIONS.items():
-            env = env_class(episodes, grid=grid, max_steps=max_steps)
-            policy = pair_policy(agents, env, epsilon)
-            result = run_episodes(env, policy, episodes, EVAL_SEED)
-            rates[condition].append(float(result.successes.mean()))
+        found = successes(models_dir, MODE, seed, grid, max_steps, episodes, env_class)
+        for condition, success in found.items():
+            rates[condition].append(float(success.mean()))
     return rates
 
 
@@ -135,9 +126,9 @@ def measure_map(map_seed: int, episodes: int) -> dict[str, Any]:
     found = {v: variant_rates(v, map_seed, episodes) for v in VARIANTS}
     success, differences = {}, {}
     for name, rates in (("independent", panel["independent"]), ("distance", panel["distance"])):
-        success[name] = {c: paired(rates[c]) for c in CONDITIONS}
+        success[name] = {c: seed_statistics(rates[c]) for c in CONDITIONS}
     for variant, rates in found.items():
-        success[variant] = {c: paired(rates[c]) for c in CONDITIONS}
+        success[variant] = {c: seed_statistics(rates[c]) for c in CONDITIONS}
         for other in ("independent", "distance"):
             differences[f"{variant}-{other}"] = {
                 c: paired(list(np.subtract(rates[c], panel[other][c]))) for c in CONDITIONS

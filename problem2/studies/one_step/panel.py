@@ -96,16 +96,23 @@ def pair_policy(agents: tuple, env: VectorMultiAgentEnv, epsilon: float) -> Poli
 
 
 def successes(
-    models_dir: Path, mode: str, seed: int, grid: np.ndarray, max_steps: int, episodes: int
+    models_dir: Path,
+    mode: str,
+    seed: int,
+    grid: np.ndarray,
+    max_steps: int,
+    episodes: int,
+    env_class: type[VectorMultiAgentEnv] = VectorMultiAgentEnv,
 ) -> dict[str, np.ndarray]:
     """Per-episode success (E,) of one exported pair per condition; memory-contract files
-    (``initial_state``) or memoryless ones (``model(obs) -> (q, message)``)."""
+    (``initial_state``) or memoryless ones (``model(obs) -> (q, message)``), played in
+    ``env_class`` (a study's environment that changes an input, as in training)."""
     agents = tuple(
         torch.jit.load(str(models_dir / f"{mode}_seed{seed}_agent_{a}.pt")) for a in "AB"
     )
     result = {}
     for condition, epsilon in CONDITIONS.items():
-        env = VectorMultiAgentEnv(episodes, grid=grid, max_steps=max_steps)
+        env = env_class(episodes, grid=grid, max_steps=max_steps)
         policy = pair_policy(agents, env, epsilon)
         result[condition] = run_episodes(env, policy, episodes, seed=EVAL_SEED).successes
     return result
