@@ -25,10 +25,8 @@ from safety import make_console_safe, use_reproducible_matmul, write_json_atomic
 
 import numpy as np
 import torch
-import train
 from analysis.stats import seed_statistics
 from rollout import EVAL_SEED
-from settings import TrainConfig
 from trainer import DQNTrainer
 from vector_env import VectorMultiAgentEnv
 
@@ -95,15 +93,6 @@ class NoiseTrainer(DQNTrainer):
 VARIANTS = {"clock": ClockTrainer, "noise": NoiseTrainer}  # each trains and tests in its env
 
 
-def train_variants(workers: int) -> None:
-    for variant, trainer_class in VARIANTS.items():
-        for map_seed in MAPS:
-            settings = dict(mode=MODE, map_seed=map_seed, seed=SEEDS[0], num_seeds=len(SEEDS))
-            folder = CLOCK_DIR / variant / f"map{map_seed}"
-            cfg = TrainConfig(**settings, overwrite=True, output_dir=str(folder), workers=workers)
-            train.main(cfg=cfg, trainer_class=trainer_class)
-
-
 def variant_rates(variant: str, map_seed: int, episodes: int) -> dict[str, list[float]]:
     """Per condition the success rate of each seed's pair (S,) in the variant's own env."""
     models_dir = CLOCK_DIR / variant / f"map{map_seed}" / "agent_models"
@@ -141,7 +130,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     make_console_safe()
     args = why.parse_args(argv, __doc__.split("\n\n")[0], "train both variants' batches first")
     if args.train:
-        train_variants(args.workers)
+        why.train_batches(VARIANTS, MODE, CLOCK_DIR, args.workers)
     torch.set_num_threads(1)
     maps = {}
     for map_seed in MAPS:

@@ -78,11 +78,13 @@ class ObservationOnlyTrainer(OneStepMemoryTrainer):
 ABLATIONS = {"move": MoveOnlyTrainer, "observation": ObservationOnlyTrainer}
 
 
-def train_ablations(workers: int) -> None:
-    for part, trainer_class in ABLATIONS.items():
+def train_batches(trainers: dict[str, type], mode: str, output_dir: Path, workers: int) -> None:
+    """For each named trainer and each of ``MAPS``, one batch of ``mode`` over ``SEEDS`` with the
+    main recipe into ``output_dir/<name>/map<K>`` (the ablations here, the clock control's)."""
+    for name, trainer_class in trainers.items():
         for map_seed in MAPS:
-            settings = dict(mode=MODE, map_seed=map_seed, seed=SEEDS[0], num_seeds=len(SEEDS))
-            folder = ABLATIONS_DIR / part / f"map{map_seed}"
+            settings = dict(mode=mode, map_seed=map_seed, seed=SEEDS[0], num_seeds=len(SEEDS))
+            folder = output_dir / name / f"map{map_seed}"
             cfg = TrainConfig(**settings, overwrite=True, output_dir=str(folder), workers=workers)
             train.main(cfg=cfg, trainer_class=trainer_class)
 
@@ -319,7 +321,7 @@ def main(argv: list[str] | None = None) -> dict:
     make_console_safe()
     args = parse_args(argv)
     if args.train:
-        train_ablations(args.workers)
+        train_batches(ABLATIONS, MODE, ABLATIONS_DIR, args.workers)
     torch.set_num_threads(1)
     entries, shown = [], None
     for map_seed in MAPS:
